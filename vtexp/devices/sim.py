@@ -1,0 +1,78 @@
+"""The ``sim`` backend: an in-process array with a virtual clock.
+
+It records exactly what would have been driven: every play, every all-off,
+and the state of each actuator. Its clock is virtual (milliseconds since
+open) and advances by each schedule's duration, so a whole study runs in
+well under a second; ``realtime=True`` also sleeps for the duration, for
+demonstrations in front of people.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..model import DeviceInfo, DeviceProfile, PlayedPulse, PlayReport, Schedule
+from .base import DeviceBase
+
+
+@dataclass
+class SimEvent:
+    t_ms: float
+    kind: str                 # "play" | "all_off" | "open" | "close" | "wait"
+    detail: object = None
+
+
+@dataclass
+class SimDevice(DeviceBase):
+    profile: DeviceProfile
+    realtime: bool = False
+    clock_ms: float = 0.0
+    history: list[SimEvent] = field(default_factory=list)
+    plays: list[PlayReport] = field(default_factory=list)
+
+    backend = "sim"
+
+    def __post_init__(self) -> None:
+        DeviceBase.__init__(self, self.profile)
+        # Drive level (or amplitude) of each actuator right now; all zero when idle.
+        self.state = np.zeros((self.profile.rows, self.profile.cols), dtype=float)
+
+    def _open(self) -> DeviceInfo:
+        self.history.append(SimEvent(self.clock_ms, "open"))
+        return DeviceInfo(backend="sim", profile=self.profile.name, rows=self.profile.rows,
+                          cols=self.profile.cols, firmware=f"vtexp-sim", protocol="in-process",
+                          details={"clock": "virtual" if not self.realtime else "realtime"})
+
+    def _play(self, schedule: Schedule) -> PlayReport:
+        start = self.clock_ms
+        played = [PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
+                              onset_ms=p.onset_ms, duration_ms=p.duration_ms,
+                              level=p.level, train=p.train)
+                  for p in schedule.sorted()]
+        report = PlayReport(device=self.profile.name, started_at_ms=start,
+                            duration_ms=schedule.duration_ms, pulses=played)
+        if self.realtime and schedule.duration_ms > 0:
+            time.sleep(schedule.duration_ms / 1000.0)
+        self.clock_ms = start + schedule.duration_ms
+        self.history.append(SimEvent(start, "play", report))
+        self.plays.append(report)
+        self.state[:] = 0.0     # every pulse has ended by the end of the schedule
+        return report
+
+    def wait(self, ms: float) -> None:
+        """Let ``ms`` of virtual time pass (inter-trial intervals)."""
+        if ms > 0:
+            self.history.append(SimEvent(self.clock_ms, "wait", ms))
+            if self.realtime:
+                time.sleep(ms / 1000.0)
+            self.clock_ms += ms
+
+    def _all_off(self) -> None:
+        self.state[:] = 0.0
+        self.history.append(SimEvent(self.clock_ms, "all_off"))
+
+    def _close(self) -> None:
+        self.history.append(SimEvent(self.clock_ms, "close"))

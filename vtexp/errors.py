@@ -1,0 +1,63 @@
+"""Errors meant for people.
+
+Every error a user can cause by their input derives from :class:`VtexpError`.
+The CLI prints its message (no traceback) and exits non-zero. Messages say
+what was wrong, where (file, line, key; or actuator and time), and what to do.
+"""
+
+from __future__ import annotations
+
+
+class VtexpError(Exception):
+    """Base class of errors that the CLI reports as one clear message."""
+
+    exit_code = 2
+
+
+class InputError(VtexpError):
+    """A file or value given by the user is wrong.
+
+    Parameters
+    ----------
+    message:
+        What is wrong and what is expected.
+    path:
+        The file in which it is wrong, if any.
+    line:
+        1-based line number in ``path``, if known.
+    key:
+        Dotted path of the offending key (``design.repetitions``), if any.
+    """
+
+    def __init__(self, message: str, *, path: str | None = None,
+                 line: int | None = None, key: str | None = None):
+        self.message = message
+        self.path = path
+        self.line = line
+        self.key = key
+        super().__init__(self.format())
+
+    def format(self) -> str:
+        where = ""
+        if self.path:
+            where = str(self.path)
+            if self.line:
+                where += f":{self.line}"
+            where += ": "
+        if self.key:
+            where += f"{self.key}: "
+        return where + self.message
+
+
+class UnsafeStimulus(VtexpError):
+    """A Schedule would exceed the device profile's safety limits."""
+
+
+class DeviceError(VtexpError):
+    """The device failed or could not be reached."""
+
+    exit_code = 3
+
+
+class SessionError(VtexpError):
+    """A session cannot start or continue (existing data, unwritable disk...)."""

@@ -1,0 +1,151 @@
+"""Safe YAML loading that remembers where every key came from.
+
+Only YAML's plain data types are accepted (``yaml.SafeLoader``): a Python
+object tag is an error, never code. Alongside the data, :func:`load_yaml`
+returns a map from each key path (a tuple of keys and list indices) to its
+1-based line, so that schema errors can name the line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import InputError
+
+KeyPath = tuple[Any, ...]
+
+
+@dataclass
+class LoadedYaml:
+    data: Any
+    path: str
+    text: str
+    lines: dict[KeyPath, int] = field(default_factory=dict)
+
+    def line_of(self, keypath: KeyPath) -> int | None:
+        """Line of ``keypath`` or of its nearest ancestor that has one."""
+        kp = tuple(keypath)
+        while kp:
+            if kp in self.lines:
+                return self.lines[kp]
+            kp = kp[:-1]
+        return self.lines.get((), None)
+
+
+def _record_lines(node: yaml.Node, prefix: KeyPath, out: dict[KeyPath, int]) -> None:
+    out.setdefault(prefix, node.start_mark.line + 1)
+    if isinstance(node, yaml.MappingNode):
+        for knode, vnode in node.value:
+            key = knode.value if isinstance(knode, yaml.ScalarNode) else str(knode.value)
+            # Mapping keys that look like integers are constructed as ints.
+            try:
+                key_obj: Any = yaml.safe_load(key) if isinstance(knode, yaml.ScalarNode) else key
+                if not isinstance(key_obj, (str, int, float, bool)):
+                    key_obj = key
+            except yaml.YAMLError:
+                key_obj = key
+            kp = prefix + (key_obj,)
+            out[kp] = knode.start_mark.line + 1
+            _record_lines(vnode, kp, out)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            kp = prefix + (i,)
+            out[kp] = item.start_mark.line + 1
+            _record_lines(item, kp, out)
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that refuses duplicate keys (YAML silently keeps the last)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen: dict[Any, int] = {}
+        for knode, _ in node.value:
+            key = self.construct_object(knode, deep=deep)
+            try:
+                hash(key)
+            except TypeError:
+                continue
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None,
+                    f"duplicate key {key!r} (first on line {seen[key]})",
+                    knode.start_mark)
+            seen[key] = knode.start_mark.line + 1
+        return super().construct_mapping(node, deep=deep)
+
+
+def load_yaml_text(text: str, path: str = "<string>") -> LoadedYaml:
+    loader = _UniqueKeyLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            raise InputError("the file is empty; expected a YAML mapping", path=path, line=1)
+        data = loader.construct_document(node)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark is not None else None
+        problem = exc.problem or str(exc)
+        if "could not determine a constructor" in problem:
+            problem = (f"{problem.strip()}: tags that create objects are not allowed; "
+                       "use plain YAML values")
+        context = f" ({exc.context})" if exc.context and exc.context not in problem else ""
+        raise InputError(f"YAML syntax error: {problem}{context}", path=path, line=line) from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"YAML error: {exc}", path=path) from None
+    finally:
+        loader.dispose()
+    lines: dict[KeyPath, int] = {}
+    _record_lines(node, (), lines)
+    return LoadedYaml(data=data, path=path, text=text, lines=lines)
+
+
+def load_yaml(path: str | Path) -> LoadedYaml:
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError("file not found", path=str(p)) from None
+    except IsADirectoryError:
+        raise InputError("is a directory, expected a YAML file", path=str(p)) from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"not UTF-8 text ({exc.reason} at byte {exc.start})", path=str(p)) from None
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror}", path=str(p)) from None
+    return load_yaml_text(text, str(p))
+
+
+def format_validation_error(exc, loaded: LoadedYaml, root: KeyPath = ()) -> InputError:
+    """Turn the first error of a pydantic ``ValidationError`` into an InputError."""
+    errors = exc.errors(include_url=False)
+    err = errors[0]
+    loc = tuple(x for x in err["loc"] if not _is_union_tag(x))
+    full = root + loc
+    key = ".".join(str(x) for x in full) or None
+    msg = _message(err)
+    more = f" (and {len(errors) - 1} more problem{'s' if len(errors) > 2 else ''})" \
+        if len(errors) > 1 else ""
+    return InputError(msg + more, path=loaded.path, line=loaded.line_of(full), key=key)
+
+
+def _is_union_tag(x: Any) -> bool:
+    # pydantic puts the chosen union member or function name into ``loc``.
+    return isinstance(x, str) and (x.startswith("function-") or "[" in x)
+
+
+def _message(err: dict) -> str:
+    typ = err["type"]
+    inp = err.get("input")
+    if typ == "extra_forbidden":
+        return "unknown key; check its spelling against docs/experiment-format.md"
+    if typ == "missing":
+        return "required key is missing"
+    msg = err["msg"]
+    if msg.startswith("Value error, "):
+        msg = msg[len("Value error, "):]
+    if isinstance(inp, (str, int, float, bool)) and typ not in ("value_error",):
+        msg += f" (got {inp!r})"
+    return msg
