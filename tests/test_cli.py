@@ -1,0 +1,81 @@
+"""The command line as a user meets it: plan, run, analyze, demo."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+
+from conftest import GRID
+
+
+def test_plan_prints_the_trial_list(cli):
+    r = cli("plan", str(GRID), "--participant", "01")
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert "96 trials" in lines[0] and "seed 10676162643557027387" in lines[0]
+    assert lines[1].split()[:3] == ["trial", "shape", "timing"]
+    assert len(lines) == 2 + 96
+    assert cli("plan", str(GRID), "--participant", "01").stdout == r.stdout
+
+
+def test_plan_tsv_differs_between_participants(cli):
+    a = cli("plan", str(GRID), "-p", "01", "--format", "tsv").stdout
+    b = cli("plan", str(GRID), "-p", "02", "--format", "tsv").stdout
+    assert a != b and len(a.splitlines()) == len(b.splitlines()) == 97
+
+
+def test_plan_refuses_a_path_as_participant(cli):
+    r = cli("plan", str(GRID), "-p", "../../etc")
+    assert r.returncode == 2 and "not a plain token" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_run_then_analyze(cli, tmp_path):
+    data = tmp_path / "data"
+    r = cli("run", str(GRID), "-p", "01", "--responder", "scripted:correct", "--data", str(data),
+            "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "session completed: 96 trials" in r.stdout and "96/96 correct" in r.stdout
+    again = cli("run", str(GRID), "-p", "01", "--responder", "scripted:correct", "--data",
+                str(data), "--quiet")
+    assert again.returncode == 2 and "already exists" in again.stderr
+    r = cli("analyze", str(data / "duration_interval_grid"), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    rates = pd.read_csv(tmp_path / "out" / "duration_interval_grid_rates_by_condition.csv")
+    assert len(rates) == 32 and (rates["rate"] == 1.0).all()
+    assert (tmp_path / "out" / "report.md").is_file()
+
+
+def test_run_with_an_answer_file(cli, tmp_path, minimal_yaml):
+    from conftest import write_experiment
+    f = write_experiment(tmp_path, minimal_yaml)
+    answers = tmp_path / "answers.txt"
+    answers.write_text("square\ncircle\ncircle\nsquare\n")
+    r = cli("run", str(f), "-p", "01", "--responder", f"scripted:answers={answers}",
+            "--data", str(tmp_path / "d"), "--quiet")
+    assert r.returncode == 0, r.stderr
+    tsv = next((tmp_path / "d").rglob("*_beh.tsv"))
+    assert list(pd.read_csv(tsv, sep="\t")["answer"]) == ["square", "circle", "circle", "square"]
+
+
+def test_demo_runs_logs_and_reports(cli, tmp_path):
+    r = cli("demo", "--data", str(tmp_path / "demo"), "--participants", "2", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    root = tmp_path / "demo"
+    sessions = sorted(root.glob("duration_interval_grid/sub-*/ses-1/session.json"))
+    assert len(sessions) == 2
+    assert all(json.loads(s.read_text())["status"] == "completed" for s in sessions)
+    assert (root / "report" / "report.md").is_file()
+    assert "Report:" in r.stdout and str(root / "report" / "report.md") in r.stdout
+    # A second demo replaces the first; a folder the demo did not make is left alone.
+    assert cli("demo", "--data", str(root), "--participants", "1").returncode == 0
+    assert len(list(root.glob("duration_interval_grid/sub-*"))) == 1
+    other = tmp_path / "precious"
+    other.mkdir()
+    r = cli("demo", "--data", str(other))
+    assert r.returncode == 2 and "was not made by 'vtexp demo'" in r.stderr
+
+
+def test_version(cli):
+    r = cli("--version")
+    assert r.returncode == 0 and r.stdout.startswith("vtexp ")

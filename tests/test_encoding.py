@@ -1,0 +1,95 @@
+"""Edge trace (seed 001 §3): shapes become one ordered closed loop on the vest."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vtexp.coding import sequential_trace
+from vtexp.encoding import edge_trace, follow_contour
+from vtexp.model import DeviceProfile
+from vtexp.stimuli import SHAPES, read_image, render_shape
+
+VEST = DeviceProfile.load("vest_6x8")
+
+
+def test_follow_contour_on_a_ring_visits_every_cell_once_clockwise():
+    ring = np.zeros((5, 6), bool)
+    ring[1, 1:5] = ring[3, 1:5] = ring[1:4, 1] = ring[1:4, 4] = True
+    [(path, vertex, closed)] = follow_contour(ring)
+    assert closed and len(path) == ring.sum() == len(set(path))
+    # Head: first non-zero cell in raster order; then east along the top (clockwise).
+    assert path[:4] == [(1, 1), (1, 2), (1, 3), (1, 4)]
+    assert path[4] == (2, 4)
+    # Vertices where the chain code changes: the four corners.
+    assert {p for p, v in zip(path, vertex) if v} == {(1, 1), (1, 4), (3, 4), (3, 1)}
+
+
+def test_open_path_and_separate_pieces_are_all_kept():
+    g = np.zeros((4, 8), bool)
+    g[1, 0:3] = True          # an open path
+    g[3, 5:8] = True          # another one
+    res = follow_contour(g)
+    assert [(len(p), c) for p, _, c in res] == [(3, False), (3, False)]
+    assert sum(len(p) for p, _, _ in res) == g.sum()
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_each_study_shape_is_one_closed_loop_on_the_vest(shape):
+    pat = edge_trace(render_shape(shape=shape), VEST.rows, VEST.cols)
+    assert pat.closed == [0] and pat.lines() == [0]
+    cells = [(int(p.row), int(p.col)) for p in pat.ordered()]
+    assert len(cells) == len(set(cells)) >= 8
+    assert [p.order for p in pat.ordered()] == list(range(len(cells)))
+    steps = [max(abs(a[0] - b[0]), abs(a[1] - b[1])) for a, b in zip(cells, cells[1:] + cells[:1])]
+    assert steps == [1] * len(cells)         # each step to an 8-neighbour, and back to the head
+
+
+def test_square_vertices_are_its_corners():
+    pat = edge_trace(render_shape(shape="square"), VEST.rows, VEST.cols)
+    rows = [p.row for p in pat.points]
+    cols = [p.col for p in pat.points]
+    corners = {(min(rows), min(cols)), (min(rows), max(cols)), (max(rows), min(cols)),
+               (max(rows), max(cols))}
+    assert {(p.row, p.col) for p in pat.points if p.vertex} == corners
+
+
+def test_rectangle_keeps_its_aspect_ratio_in_the_portrait_vest():
+    pat = edge_trace(render_shape(shape="rectangle"), VEST.rows, VEST.cols)
+    h = max(p.row for p in pat.points) - min(p.row for p in pat.points) + 1
+    w = max(p.col for p in pat.points) - min(p.col for p in pat.points) + 1
+    assert w > h            # wider than tall, as drawn, though the array is portrait
+
+
+def test_uniform_image_gives_an_empty_pattern():
+    assert edge_trace(np.full((240, 320), 128, np.uint8), 8, 6).points == []
+
+
+def test_sequential_trace_uses_soa_onset_to_onset_and_vertex_levels():
+    pat = edge_trace(render_shape(shape="square"), VEST.rows, VEST.cols)
+    s = sequential_trace(pat, VEST, duration_ms=300, soa_ms=200, loops=2)
+    n = len(pat.points)
+    assert len(s.pulses) == 2 * n
+    assert [p.onset_ms for p in s.pulses] == [200.0 * k for k in range(2 * n)]
+    assert all(p.duration_ms == 300 for p in s.pulses)
+    ordered = pat.ordered()
+    assert [p.level for p in s.pulses[:n]] == [2 if q.vertex else 1 for q in ordered]
+    assert s.duration_ms == 200 * (2 * n - 1) + 300
+
+
+def test_image_files_of_any_depth_and_colour(tmp_path):
+    from vtexp._cv2 import cv2
+    cv = cv2()
+    gray = render_shape(shape="circle")
+    cv.imwrite(str(tmp_path / "g.png"), gray)
+    cv.imwrite(str(tmp_path / "c.jpg"), cv.cvtColor(gray, cv.COLOR_GRAY2BGR))
+    cv.imwrite(str(tmp_path / "w.png"), gray.astype(np.uint16) * 257)
+    for f in ("g.png", "c.jpg", "w.png"):
+        img = read_image(tmp_path / f)
+        assert img.shape == gray.shape and img.dtype == np.uint8
+        assert np.abs(img.astype(int) - gray).mean() < 3
+
+
+def test_cv2_is_the_contrib_build():
+    from vtexp._cv2 import cv2
+    assert hasattr(cv2(), "ximgproc")

@@ -1,0 +1,207 @@
+"""The session engine and its log: files, contents, refusals, and surviving SIGKILL."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+
+from conftest import GRID, ROOT, write_experiment
+from vtexp.analysis import read_session
+from vtexp.devices import open_device
+from vtexp.errors import InputError, SessionError
+from vtexp.experiment import load_experiment
+from vtexp.log import sha256_file
+from vtexp.model import DeviceProfile
+from vtexp.responders import ScriptedResponder, make_responder
+from vtexp.session import SessionPaths, run_session
+
+
+def run(lx, data, participant="01", session=1, responder=None):
+    responder = responder or make_responder("scripted:accuracy=0.7", participant, session)
+    with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
+        return run_session(lx, participant, session, dev, responder, data), dev
+
+
+@pytest.fixture(scope="module")
+def grid_lx():
+    return load_experiment(GRID)
+
+
+def test_session_writes_bids_files_and_a_complete_record(tmp_path, grid_lx):
+    res, dev = run(grid_lx, tmp_path)
+    d = tmp_path / "duration_interval_grid" / "sub-01" / "ses-1"
+    assert res.paths.dir == d and res.status == "completed"
+    prefix = "sub-01_ses-1_task-durationIntervalGrid"
+    assert sorted(p.name for p in d.iterdir()) == sorted(
+        ["session.json", f"{prefix}_beh.tsv", f"{prefix}_beh.json", f"{prefix}_events.tsv"])
+
+    beh = pd.read_csv(d / f"{prefix}_beh.tsv", sep="\t", dtype=str, keep_default_na=False)
+    assert len(beh) == 96 and list(beh["trial"]) == [str(i) for i in range(1, 97)]
+    assert {"shape", "timing", "answer", "correct", "rt_s", "replays"} <= set(beh.columns)
+    assert (beh["correct"] == (beh["answer"] == beh["correct_answer"]).map({True: "1",
+                                                                          False: "0"})).all()
+    assert (beh["rt_s"] == "n/a").all()        # scripted answers have no reaction time
+
+    side = json.loads((d / f"{prefix}_beh.json").read_text())
+    assert side["TaskName"] == grid_lx.experiment.title and "Instructions" in side
+    assert set(beh.columns) <= set(side) | {"experiment"}
+    assert side["rt_s"]["Units"] == "s"
+
+    meta = json.loads((d / "session.json").read_text())
+    assert meta["status"] == "completed" and meta["n_trials_logged"] == 96
+    assert meta["seed"] == res.seed and meta["experiment_file"]["sha256"] == grid_lx.sha256
+    assert meta["experiment_loaded"]["name"] == "duration_interval_grid"
+    assert meta["device"]["backend"] == "sim" and meta["device_profile"]["name"] == "vest_6x8"
+    assert meta["environment"]["packages"]["numpy"]
+    assert meta["started_at"] <= meta["ended_at"]
+    for name, digest in meta["checksums"].items():
+        assert sha256_file(d / name) == digest
+
+    # The events log holds every pulse the device played, with device onsets.
+    ev = pd.read_csv(d / f"{prefix}_events.tsv", sep="\t")
+    assert len(ev) == sum(len(p.pulses) for p in dev.plays) == beh["n_pulses"].astype(int).sum()
+    first = ev[ev["trial"] == 1]
+    assert (first["onset_ms"] - first["scheduled_onset_ms"]).abs().max() == 0
+
+
+def test_trial_order_in_the_log_is_the_planned_order(tmp_path, grid_lx):
+    from vtexp.compile import compile_conditions
+    from vtexp.design import trial_list
+    res, _ = run(grid_lx, tmp_path, participant="P7", session=2)
+    trials, _ = trial_list(grid_lx.experiment, compile_conditions(grid_lx), "P7", 2)
+    logged = read_session(res.paths.dir).trials
+    assert list(logged["shape"]) == [t.levels["shape"] for t in trials]
+    assert list(logged["timing"]) == [t.levels["timing"] for t in trials]
+
+
+def test_a_session_is_never_overwritten(tmp_path, grid_lx):
+    res, _ = run(grid_lx, tmp_path)
+    before = {p.name: sha256_file(p) for p in res.paths.dir.iterdir()}
+    with pytest.raises(SessionError, match="already exists.*nothing was overwritten"):
+        run(grid_lx, tmp_path)
+    assert {p.name: sha256_file(p) for p in res.paths.dir.iterdir()} == before
+
+
+@pytest.mark.parametrize("bad", ["../x", "a/b", "..", "", "sub 1", "a_b", "x" * 65])
+def test_participant_must_be_a_plain_token(tmp_path, grid_lx, bad):
+    with pytest.raises(InputError, match="not a plain token"):
+        run(grid_lx, tmp_path, participant=bad)
+    assert not (tmp_path / "duration_interval_grid").exists()
+
+
+def test_replays_are_played_and_counted(tmp_path, grid_lx):
+    responder = ScriptedResponder(lambda q, t: t.levels["shape"], replays=2)
+    res, dev = run(grid_lx, tmp_path, responder=responder)
+    assert all(r.replays == 2 for r in res.records)
+    assert len(dev.plays) == 3 * 96
+    ev = pd.read_csv(res.paths.events_tsv, sep="\t")
+    assert sorted(ev["play"].unique()) == [0, 1, 2]
+
+
+def test_failure_mid_session_keeps_completed_trials_and_says_why(tmp_path, minimal_yaml):
+    lx = load_experiment(write_experiment(tmp_path, minimal_yaml))
+    calls = []
+
+    def flaky(q, t):
+        calls.append(t.number)
+        if t.number == 3:
+            raise RuntimeError("response box unplugged")
+        return "square"
+    with pytest.raises(RuntimeError):
+        run(lx, tmp_path / "d", responder=ScriptedResponder(flaky))
+    d = tmp_path / "d" / "mini" / "sub-01" / "ses-1"
+    meta = json.loads((d / "session.json").read_text())
+    assert meta["status"] == "failed" and "response box unplugged" in meta["reason"]
+    assert meta["n_trials_logged"] == 2
+    assert len(read_session(d).trials) == 2
+
+
+def test_unwritable_data_folder_is_a_clear_error(tmp_path, grid_lx):
+    if os.geteuid() == 0:
+        # root ignores permissions; use a path under a regular file instead
+        (tmp_path / "file").write_text("x")
+        data = tmp_path / "file" / "data"
+    else:
+        data = tmp_path / "ro"
+        data.mkdir(mode=0o500)
+    with pytest.raises(SessionError, match="cannot create the session folder"):
+        run(grid_lx, data)
+
+
+def _child(tmp_path, participant, delay):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.Popen([sys.executable, str(ROOT / "tests" / "session_child.py"),
+                             str(GRID), str(tmp_path), participant, str(delay)],
+                            stdout=subprocess.PIPE, text=True, env=env)
+
+
+def _complete_rows(path):
+    text = path.read_bytes().decode()
+    lines = text.split("\n")
+    complete, partial = lines[:-1], lines[-1]
+    return complete, partial
+
+
+@pytest.mark.parametrize("kill_after", [1, 7, 23])
+def test_sigkill_between_trials_keeps_every_completed_row(tmp_path, kill_after):
+    proc = _child(tmp_path, "K", 0.01)
+    seen = 0
+    for line in proc.stdout:
+        if line.startswith("logged"):
+            seen = int(line.split()[1])
+            if seen >= kill_after:
+                proc.send_signal(signal.SIGKILL)
+                break
+    proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    paths = SessionPaths.of(tmp_path, "duration_interval_grid", "durationIntervalGrid", "K", 1)
+    complete, partial = _complete_rows(paths.beh_tsv)
+    header = complete[0].split("\t")
+    rows = [r.split("\t") for r in complete[1:]]
+    assert len(rows) >= seen
+    assert all(len(r) == len(header) for r in rows)
+    assert [int(r[0]) for r in rows] == list(range(1, len(rows) + 1))
+    data = read_session(paths.dir)
+    assert len(data.trials) == len(rows)
+    assert any("did not close" in w for w in data.warnings)
+    assert json.loads(paths.session_json.read_text())["status"] == "running"
+
+
+def test_sigkill_at_random_moments_never_corrupts_the_log(tmp_path):
+    rng = random.Random(20261122)
+    for i in range(6):
+        proc = _child(tmp_path, f"R{i}", 0.005)
+        # Wait for the first trial, then kill at a random moment.
+        for line in proc.stdout:
+            if line.startswith("logged"):
+                break
+        time.sleep(rng.uniform(0.0, 0.25))
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+        paths = SessionPaths.of(tmp_path, "duration_interval_grid", "durationIntervalGrid",
+                                f"R{i}", 1)
+        complete, partial = _complete_rows(paths.beh_tsv)
+        width = len(complete[0].split("\t"))
+        assert all(len(r.split("\t")) == width for r in complete[1:])
+        data = read_session(paths.dir)
+        assert len(data.trials) == len(complete) - 1 >= 1
+        if partial:
+            assert any("incomplete" in w for w in data.warnings)
+
+
+def test_truncated_last_row_is_reported_and_ignored(tmp_path, grid_lx):
+    res, _ = run(grid_lx, tmp_path)
+    with open(res.paths.beh_tsv, "ab") as f:
+        f.write(b"97\t0\t1\tcirc")
+    data = read_session(res.paths.dir)
+    assert len(data.trials) == 96
+    assert any("last row is incomplete" in w for w in data.warnings)
+    assert any("changed since the session ended" in w for w in data.warnings)

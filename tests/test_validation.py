@@ -1,0 +1,186 @@
+"""Experiment files: schema, references and safety; errors name file, line and key."""
+
+from __future__ import annotations
+
+import pytest
+
+from conftest import write_experiment
+from vtexp.errors import InputError
+from vtexp.experiment import load_experiment
+
+
+def load(tmp_path, text):
+    return load_experiment(write_experiment(tmp_path, text))
+
+
+def error_of(tmp_path, text) -> InputError:
+    with pytest.raises(InputError) as ei:
+        load(tmp_path, text)
+    return ei.value
+
+
+def test_shipped_experiment_is_valid(grid_path):
+    lx = load_experiment(grid_path)
+    assert lx.experiment.name == "duration_interval_grid"
+    assert lx.experiment.task_label == "durationIntervalGrid"
+
+
+def test_minimal_is_valid(tmp_path, minimal_yaml):
+    assert load(tmp_path, minimal_yaml).experiment.design.repetitions == 2
+
+
+def test_unknown_key_names_line_and_key(tmp_path, minimal_yaml):
+    text = minimal_yaml.replace("  repetitions: 2\n", "  repetitions: 2\n  repetitons: 3\n")
+    e = error_of(tmp_path, text)
+    assert e.line == text.splitlines().index("  repetitons: 3") + 1
+    assert e.key == "design.repetitons" and "unknown key" in e.message
+    assert str(e).startswith(f"{tmp_path / 'exp.yaml'}:{e.line}: design.repetitons:")
+
+
+def test_unknown_top_level_key(tmp_path, minimal_yaml):
+    e = error_of(tmp_path, minimal_yaml + "colour: red\n")
+    assert e.key == "colour" and e.line == len(minimal_yaml.splitlines()) + 1
+
+
+def test_wrong_type_says_what_is_expected(tmp_path, minimal_yaml):
+    text = minimal_yaml.replace("repetitions: 2", "repetitions: many")
+    e = error_of(tmp_path, text)
+    assert e.key == "design.repetitions"
+    assert "integer" in e.message and "'many'" in e.message
+    assert e.line == text.splitlines().index("  repetitions: many") + 1
+
+
+def test_out_of_range_value(tmp_path, minimal_yaml):
+    e = error_of(tmp_path, minimal_yaml.replace("repetitions: 2", "repetitions: 0"))
+    assert e.key == "design.repetitions" and "greater than or equal to 1" in e.message
+
+
+def test_out_of_range_coding_parameter_points_at_it(tmp_path, minimal_yaml):
+    text = minimal_yaml.replace("soa_ms: 200", "soa_ms: -5")
+    e = error_of(tmp_path, text)
+    assert e.key == "coding.params.soa_ms" and "greater than 0" in e.message
+    assert e.line == text.splitlines().index("  params: {duration_ms: 200, soa_ms: -5}") + 1
+
+
+def test_missing_key(tmp_path, minimal_yaml):
+    text = minimal_yaml.replace("title: A minimal experiment\n", "")
+    e = error_of(tmp_path, text)
+    assert e.key == "title" and "required" in e.message
+
+
+def test_yaml_syntax_error_has_line(tmp_path, minimal_yaml):
+    text = minimal_yaml.replace("options: [square, circle]", "options: [square, circle")
+    e = error_of(tmp_path, text)
+    assert "YAML syntax error" in e.message and e.line is not None
+
+
+def test_python_object_tags_are_refused(tmp_path, minimal_yaml):
+    text = minimal_yaml.replace("title: A minimal experiment",
+                                "title: !!python/object/apply:os.system ['echo pwned']")
+    e = error_of(tmp_path, text)
+    assert "not allowed" in e.message and e.line == 2
+
+
+def test_duplicate_keys_are_refused(tmp_path, minimal_yaml):
+    e = error_of(tmp_path, minimal_yaml + "title: again\n")
+    assert "duplicate key 'title'" in e.message
+
+
+def test_missing_stimulus_file(tmp_path, minimal_yaml):
+    text = minimal_yaml.replace("square: {generator: shape, params: {shape: square}}",
+                                "square: {file: images/square.png}")
+    e = error_of(tmp_path, text)
+    assert e.key == "stimuli.square.file" and "not found" in e.message
+    assert e.line == 5
+
+
+def test_unreadable_stimulus_file(tmp_path, minimal_yaml):
+    (tmp_path / "square.png").write_bytes(b"not an image")
+    text = minimal_yaml.replace("square: {generator: shape, params: {shape: square}}",
+                                "square: {file: square.png}")
+    e = error_of(tmp_path, text)
+    assert e.key == "stimuli.square.file" and "not a readable image" in e.message
+
+
+def test_stimulus_from_an_image_file(tmp_path, minimal_yaml):
+    from vtexp._cv2 import cv2
+    from vtexp.stimuli import render_shape
+    cv2().imwrite(str(tmp_path / "square.png"), render_shape(shape="square"))
+    text = minimal_yaml.replace("square: {generator: shape, params: {shape: square}}",
+                                "square: {file: square.png}")
+    assert load(tmp_path, text).experiment.stimuli["square"].file == "square.png"
+
+
+def test_unknown_device(tmp_path, minimal_yaml):
+    e = error_of(tmp_path, minimal_yaml.replace("device: vest_6x8", "device: vest_9x9"))
+    assert e.key == "device" and e.line == 3 and "known profiles" in e.message
+
+
+def test_factor_level_that_is_no_stimulus(tmp_path, minimal_yaml):
+    e = error_of(tmp_path, minimal_yaml.replace("levels: [square, circle]",
+                                                "levels: [square, oval]"))
+    assert e.key == "factors.shape.levels.1" and "'oval' is not a stimulus" in e.message
+
+
+def test_correct_answer_must_be_an_option(tmp_path, minimal_yaml):
+    e = error_of(tmp_path, minimal_yaml.replace('correct: "{shape}"', 'correct: "{shap}"'))
+    assert e.key == "question.correct" and "names no factor" in e.message
+
+
+def test_unsafe_stimulus_is_refused_at_validation(tmp_path, minimal_yaml):
+    text = minimal_yaml.replace("params: {duration_ms: 200, soa_ms: 200}",
+                                "params: {duration_ms: 200, soa_ms: 200, vertex_level: 7}")
+    e = error_of(tmp_path, text)
+    assert "unsafe stimulus" in e.message and "level 7 exceeds max_level 2" in e.message
+    assert "actuator (row" in e.message
+
+
+def test_unsafe_level_of_a_factor_points_at_that_level(tmp_path, minimal_yaml):
+    text = minimal_yaml.replace("""design:""", """  timing:
+    sets: coding
+    levels:
+      short: {duration_ms: 100}
+      endless: {duration_ms: 9000}
+design:""")
+    e = error_of(tmp_path, text)
+    assert e.key == "factors.timing.levels.endless"
+    assert e.line == text.splitlines().index("      endless: {duration_ms: 9000}") + 1
+    assert "max_on_ms" in e.message
+
+
+def test_reserved_factor_name(tmp_path, minimal_yaml):
+    text = minimal_yaml.replace("  shape:\n    sets", "  answer:\n    sets").replace(
+        '"{shape}"', '"{answer}"')
+    e = error_of(tmp_path, text)
+    assert e.key == "factors.answer" and "reserved" in e.message
+
+
+@pytest.mark.parametrize("mutation, needle", [
+    (("repetitions: 2", "repetitions: 0"), "design.repetitions"),
+    (("title: A minimal experiment", "title: [a"), "YAML syntax error"),
+    (("iti_ms: 0", "itii_ms: 0"), "design.itii_ms: unknown key"),
+    (("square: {generator: shape, params: {shape: square}}", "square: {file: nope.png}"),
+     "stimuli.square.file"),
+])
+def test_cli_validate_reports_one_clear_message(tmp_path, minimal_yaml, cli, mutation, needle):
+    f = write_experiment(tmp_path, minimal_yaml.replace(*mutation))
+    r = cli("validate", str(f))
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and r.stdout == ""
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and str(f) in lines[0]
+
+
+def test_cli_run_reports_bad_input_without_traceback(tmp_path, minimal_yaml, cli):
+    f = write_experiment(tmp_path, minimal_yaml.replace("repetitions: 2", "repetitions: -1"))
+    r = cli("run", str(f), "-p", "01", "--responder", "scripted:correct",
+            "--data", str(tmp_path / "d"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "design.repetitions" in r.stderr
+    assert not (tmp_path / "d").exists()
+
+
+def test_cli_validate_ok(cli, grid_path):
+    r = cli("validate", str(grid_path))
+    assert r.returncode == 0, r.stderr
+    assert "OK" in r.stdout and "96 trials per session" in r.stdout

@@ -1,0 +1,113 @@
+"""Finding, verifying and reading session folders into one tidy trial table."""
+
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from ..errors import InputError
+from ..log import NA, sha256_file
+
+
+@dataclass
+class SessionData:
+    dir: Path
+    meta: dict
+    trials: pd.DataFrame
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def factors(self) -> list[str]:
+        return list(self.meta.get("experiment_loaded", {}).get("factors", {}))
+
+
+def find_sessions(paths: list[Path | str]) -> list[Path]:
+    """Session folders (holding ``session.json``) at or below each path, sorted."""
+    found: list[Path] = []
+    for p in map(Path, paths):
+        if not p.exists():
+            raise InputError("no such file or folder", path=str(p))
+        if p.is_file():
+            if p.name != "session.json":
+                raise InputError("not a vtexp session folder (expected a folder holding "
+                                 "session.json)", path=str(p))
+            found.append(p.parent)
+        elif (p / "session.json").is_file():
+            found.append(p)
+        else:
+            found.extend(sorted(q.parent for q in p.rglob("session.json")))
+    seen, out = set(), []
+    for d in found:
+        r = d.resolve()
+        if r not in seen:
+            seen.add(r)
+            out.append(d)
+    return out
+
+
+def read_session(d: Path | str) -> SessionData:
+    """Read one session folder; problems that lose nothing become warnings."""
+    d = Path(d)
+    meta_path = d / "session.json"
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"cannot read session.json: {e}", path=str(meta_path)) from None
+    if not isinstance(meta, dict) or meta.get("format") != "vtexp-session":
+        raise InputError("not a vtexp session record (no 'format: vtexp-session')",
+                         path=str(meta_path))
+    warnings: list[str] = []
+    status = meta.get("status")
+    if status == "running":
+        warnings.append(f"{d}: the session did not close (process killed or crashed); "
+                        "using the trials it logged")
+    elif status != "completed":
+        warnings.append(f"{d}: session {status}"
+                        + (f" ({meta['reason']})" if meta.get("reason") else ""))
+    beh = d / meta["files"]["beh"]
+    if not beh.is_file():
+        raise InputError("the trial log named in session.json is missing", path=str(beh))
+    for name, digest in (meta.get("checksums") or {}).items():
+        f = d / name
+        if not f.is_file():
+            warnings.append(f"{f}: listed in session.json but missing")
+        elif sha256_file(f) != digest:
+            warnings.append(f"{f}: changed since the session ended (checksum differs)")
+    text = beh.read_bytes().decode("utf-8", errors="replace")
+    if text and not text.endswith("\n"):
+        cut = text.rfind("\n") + 1
+        warnings.append(f"{beh}: last row is incomplete (cut off mid-write) and was ignored")
+        text = text[:cut]
+    header = text.split("\n", 1)[0].split("\t")
+    if "trial" not in header or "answer" not in header:
+        raise InputError("not a vtexp trial log (no 'trial' and 'answer' columns)", path=str(beh))
+    df = pd.read_csv(io.StringIO(text), sep="\t", dtype=str, na_values=[NA],
+                     keep_default_na=False)
+    for col in ("trial", "repetition", "replays", "n_pulses"):
+        df[col] = pd.to_numeric(df[col], errors="coerce").astype("Int64")
+    for col in ("practice", "correct"):
+        df[col] = pd.to_numeric(df[col], errors="coerce").astype("Int64")
+    for col in ("rt_s", "stimulus_onset_ms", "stimulus_duration_ms"):
+        df[col] = pd.to_numeric(df[col], errors="coerce")
+    df.insert(0, "session", int(meta["session"]))
+    df.insert(0, "participant", str(meta["participant"]))
+    df.insert(0, "experiment", str(meta["experiment"]))
+    return SessionData(d, meta, df, warnings)
+
+
+def load_sessions(paths: list[Path | str], *, include_practice: bool = False
+                  ) -> tuple[pd.DataFrame, list[SessionData]]:
+    """Tidy trial table (one row per trial) of every session found under ``paths``."""
+    dirs = find_sessions(paths)
+    if not dirs:
+        raise InputError("no vtexp sessions found (no session.json below "
+                         + ", ".join(map(str, paths)) + ")")
+    sessions = [read_session(d) for d in dirs]
+    df = pd.concat([s.trials for s in sessions], ignore_index=True)
+    if not include_practice:
+        df = df[df["practice"].fillna(0) == 0].reset_index(drop=True)
+    return df, sessions

@@ -1,0 +1,109 @@
+"""From a declared experiment to its conditions, each with a safe Schedule.
+
+A *condition* is one combination of factor levels (full factorial, in the
+order the factors and levels are declared). Compiling a condition renders its
+stimulus, runs the encoding pipeline, codes the Pattern into a Schedule for
+the experiment's device, and checks that Schedule against the device's
+safety limits, so an unsafe declaration is refused before any session.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .coding import CODINGS
+from .encoding import PIPELINES
+from .errors import InputError, UnsafeStimulus
+from .experiment import LoadedExperiment
+from .model import DeviceProfile, Pattern, Schedule
+from .safety import check_schedule
+from .stimuli import GENERATORS, read_image
+
+
+@dataclass
+class Condition:
+    index: int                               # 0-based, in declaration order
+    levels: dict[str, str]                   # factor -> level
+    stimulus: str
+    encoding_params: dict[str, Any]
+    coding_params: dict[str, Any]
+    pattern: Pattern | None = field(default=None, repr=False)
+    schedule: Schedule | None = field(default=None, repr=False)
+
+    @property
+    def label(self) -> str:
+        return ", ".join(f"{k}={v}" for k, v in self.levels.items())
+
+
+def enumerate_conditions(lx: LoadedExperiment) -> list[Condition]:
+    """All combinations of factor levels, without encoding them."""
+    exp = lx.experiment
+    names = list(exp.factors)
+    stim_factor = exp.stimulus_factor()
+    out = []
+    for i, combo in enumerate(itertools.product(*(exp.factors[n].level_names for n in names))):
+        levels = dict(zip(names, combo))
+        enc = dict(exp.encoding.params)
+        cod = dict(exp.coding.params)
+        for n, lvl in levels.items():
+            f = exp.factors[n]
+            if f.sets == "coding":
+                cod.update(f.params_of(lvl))
+            elif f.sets == "encoding":
+                enc.update(f.params_of(lvl))
+        stimulus = levels[stim_factor] if stim_factor else next(iter(exp.stimuli))
+        out.append(Condition(i, levels, stimulus, enc, cod))
+    return out
+
+
+def stimulus_image(lx: LoadedExperiment, name: str) -> np.ndarray:
+    spec = lx.experiment.stimuli[name]
+    if spec.file is not None:
+        try:
+            return read_image(lx.resolve(spec.file))
+        except InputError as e:
+            raise lx.error(e.message + f" ({e.path})", ("stimuli", name, "file")) from None
+    fn, _ = GENERATORS[spec.generator]
+    return fn(**spec.params)
+
+
+def compile_conditions(lx: LoadedExperiment, profile: DeviceProfile | None = None
+                       ) -> list[Condition]:
+    """Encode and code every condition; raise InputError naming an unsafe one."""
+    exp = lx.experiment
+    profile = profile or DeviceProfile.load(exp.device)
+    enc_fn, enc_model = PIPELINES[exp.encoding.pipeline]
+    cod_fn, cod_model = CODINGS[exp.coding.protocol]
+    images: dict[str, np.ndarray] = {}
+    patterns: dict[tuple, Pattern] = {}
+    conditions = enumerate_conditions(lx)
+    for c in conditions:
+        if c.stimulus not in images:
+            images[c.stimulus] = stimulus_image(lx, c.stimulus)
+        enc = enc_model.model_validate(c.encoding_params).model_dump()
+        key = (c.stimulus, tuple(sorted(enc.items())))
+        if key not in patterns:
+            patterns[key] = enc_fn(images[c.stimulus], profile.rows, profile.cols, **enc)
+        c.pattern = patterns[key]
+        if not c.pattern.points:
+            raise lx.error(f"stimulus {c.stimulus!r} gives an empty pattern on {profile.name} "
+                           "(no shape found in the image)", ("stimuli", c.stimulus))
+        cod = cod_model.model_validate(c.coding_params).model_dump()
+        c.schedule = cod_fn(c.pattern, profile, **cod)
+        try:
+            check_schedule(c.schedule, profile)
+        except UnsafeStimulus as e:
+            where = _condition_keypath(lx, c)
+            raise lx.error(f"condition {c.label}: unsafe stimulus: {e}", where) from None
+    return conditions
+
+
+def _condition_keypath(lx: LoadedExperiment, c: Condition) -> tuple:
+    for n, lvl in c.levels.items():
+        if lx.experiment.factors[n].sets == "coding":
+            return ("factors", n, "levels", lvl)
+    return ("coding", "params")

@@ -1,0 +1,281 @@
+"""Experiment declarations: the YAML schema, loading and validation.
+
+:func:`load_experiment` reads a YAML file safely, validates it against
+:class:`Experiment` (unknown keys are errors), then checks what a schema
+cannot: that names refer to things that exist, that every condition's
+parameters are valid for its pipeline and coding, and that every condition's
+stimulus is safe on the declared device. Errors name the file, the line and
+the key.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import Field, ValidationError, model_validator
+from typing_extensions import Self
+
+from .errors import InputError
+from .model import Model
+from .yamlio import KeyPath, LoadedYaml, format_validation_error, load_yaml
+
+NAME = r"^[a-z][a-z0-9_]*$"
+LABEL = r"^[A-Za-z0-9][A-Za-z0-9_.\-/ ]*$"
+
+
+class StimulusSpec(Model):
+    """A stimulus image: from a generator (``generator`` + ``params``) or a ``file``."""
+
+    generator: Literal["shape"] | None = None
+    file: str | None = Field(None, description="image path, relative to the YAML file")
+    params: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _one_source(self) -> Self:
+        if (self.generator is None) == (self.file is None):
+            raise ValueError("give either 'generator' or 'file'")
+        if self.file is not None and self.params:
+            raise ValueError("'params' apply to generators only, not to files")
+        return self
+
+
+class EncodingSpec(Model):
+    pipeline: Literal["edge-trace"]
+    params: dict[str, Any] = Field(default_factory=dict)
+
+
+class CodingSpec(Model):
+    protocol: Literal["sequential-trace"]
+    params: dict[str, Any] = Field(default_factory=dict)
+
+
+class FactorSpec(Model):
+    """A within-participant factor.
+
+    ``levels`` is a list of level names, or a mapping from level name to the
+    parameters that level sets. ``sets`` says what the factor changes:
+    ``stimulus`` (level names are stimulus names), ``coding`` or ``encoding``
+    (each level's mapping overrides those parameters), or ``none``.
+    """
+
+    levels: list[Annotated[str, Field(pattern=LABEL)]] | dict[
+        Annotated[str, Field(pattern=LABEL)], dict[str, Any]]
+    sets: Literal["stimulus", "coding", "encoding", "none"] = "none"
+    description: str = ""
+
+    @model_validator(mode="after")
+    def _shape(self) -> Self:
+        names = self.level_names
+        if len(names) < 1:
+            raise ValueError("a factor needs at least one level")
+        if len(set(names)) != len(names):
+            raise ValueError("level names must be unique")
+        if self.sets in ("coding", "encoding") and not isinstance(self.levels, dict):
+            raise ValueError(f"a factor that sets {self.sets} parameters needs levels as a "
+                             "mapping: level name -> parameters")
+        if self.sets == "stimulus" and isinstance(self.levels, dict):
+            raise ValueError("a factor that sets the stimulus lists stimulus names")
+        return self
+
+    @property
+    def level_names(self) -> list[str]:
+        return list(self.levels) if isinstance(self.levels, dict) else list(self.levels)
+
+    def params_of(self, level: str) -> dict[str, Any]:
+        return dict(self.levels[level]) if isinstance(self.levels, dict) else {}
+
+
+class DesignSpec(Model):
+    repetitions: Annotated[int, Field(ge=1, le=10000)] = Field(
+        description="times each condition is presented")
+    order: Literal["random", "sequential"] = "random"
+    seed: int | None = Field(
+        None, description="fixed shuffle seed; by default derived from (experiment, "
+                          "participant, session)")
+    iti_ms: Annotated[float, Field(ge=0, le=600000)] = Field(
+        1000, description="pause between trials, after the answer")
+
+
+class ChoiceQuestion(Model):
+    kind: Literal["choice"] = "choice"
+    name: Annotated[str, Field(pattern=NAME)] = "response"
+    prompt: str
+    options: list[Annotated[str, Field(pattern=LABEL)]] = Field(min_length=2)
+    correct: str | None = Field(
+        None, description="the correct option: a literal option, or '{factor}' for the "
+                          "trial's level of that factor, or '{stimulus}'; none if unscored")
+    replays: Annotated[int, Field(ge=0)] = Field(
+        0, description="how many times the participant may feel the stimulus again")
+
+    @model_validator(mode="after")
+    def _unique(self) -> Self:
+        if len(set(self.options)) != len(self.options):
+            raise ValueError("options must be unique")
+        return self
+
+
+class Experiment(Model):
+    name: Annotated[str, Field(pattern=NAME, max_length=64)] = Field(
+        description="lower-case identifier; names the data folder")
+    title: str
+    reference: str = Field("", description="the paper and section this reproduces")
+    description: str = ""
+    instructions: str = ""
+    device: Annotated[str, Field(pattern=r"^[A-Za-z0-9_\-]+$")] = Field(
+        description="device profile name (protocols/devices/NAME.yaml)")
+    stimuli: dict[Annotated[str, Field(pattern=LABEL)], StimulusSpec] = Field(min_length=1)
+    encoding: EncodingSpec
+    coding: CodingSpec
+    factors: dict[Annotated[str, Field(pattern=NAME)], FactorSpec] = Field(min_length=1)
+    design: DesignSpec
+    question: ChoiceQuestion
+
+    @property
+    def task_label(self) -> str:
+        """BIDS task label (letters and digits only): ``six_mode_ball`` -> ``sixModeBall``."""
+        head, *rest = self.name.split("_")
+        return head + "".join(w[:1].upper() + w[1:] for w in rest)
+
+    def stimulus_factor(self) -> str | None:
+        for name, f in self.factors.items():
+            if f.sets == "stimulus":
+                return name
+        return None
+
+
+RESERVED_COLUMNS = frozenset(
+    "trial practice repetition stimulus question answer correct_answer correct rt_s "
+    "replays stimulus_onset_ms stimulus_duration_ms n_pulses status started_at "
+    "experiment participant session".split())
+
+
+class LoadedExperiment:
+    """An experiment with where it came from (for messages and the session record)."""
+
+    def __init__(self, experiment: Experiment, source: LoadedYaml):
+        self.experiment = experiment
+        self.source = source
+        self.path = Path(source.path)
+        self.sha256 = hashlib.sha256(source.text.encode("utf-8")).hexdigest()
+
+    def error(self, message: str, keypath: KeyPath) -> InputError:
+        return InputError(message, path=self.source.path, line=self.source.line_of(keypath),
+                          key=".".join(str(k) for k in keypath))
+
+    def resolve(self, file: str) -> Path:
+        p = Path(file)
+        return p if p.is_absolute() else self.path.parent / p
+
+
+def load_experiment(path: str | Path, *, check_stimuli: bool = True) -> LoadedExperiment:
+    """Load, validate and check an experiment file; raise :class:`InputError` if wrong."""
+    loaded = load_yaml(path)
+    if not isinstance(loaded.data, dict):
+        raise InputError("expected a mapping of keys (name:, title:, ...) at the top level",
+                         path=loaded.path, line=1)
+    try:
+        exp = Experiment.model_validate(loaded.data)
+    except ValidationError as exc:
+        raise format_validation_error(exc, loaded) from None
+    lx = LoadedExperiment(exp, loaded)
+    _check(lx)
+    if check_stimuli:
+        from .compile import compile_conditions
+
+        compile_conditions(lx)          # encodes every condition and checks its safety
+    return lx
+
+
+def _check(lx: LoadedExperiment) -> None:
+    from .coding import CODINGS
+    from .encoding import PIPELINES
+    from .model import DeviceProfile
+    from .stimuli import GENERATORS
+
+    exp = lx.experiment
+    try:
+        DeviceProfile.load(exp.device)
+    except InputError as e:
+        if e.path is None:                      # unknown name: point at the key
+            raise lx.error(e.message, ("device",)) from None
+        raise
+
+    for sname, spec in exp.stimuli.items():
+        if spec.file is not None:
+            f = lx.resolve(spec.file)
+            if not f.is_file():
+                raise lx.error(f"stimulus file {str(f)!r} not found", ("stimuli", sname, "file"))
+        else:
+            _, params_model = GENERATORS[spec.generator]
+            _validate_params(lx, params_model, spec.params, ("stimuli", sname, "params"))
+
+    stim_factors = [n for n, f in exp.factors.items() if f.sets == "stimulus"]
+    if len(stim_factors) > 1:
+        raise lx.error("only one factor may set the stimulus", ("factors", stim_factors[1], "sets"))
+    if stim_factors:
+        fname = stim_factors[0]
+        for i, level in enumerate(exp.factors[fname].level_names):
+            if level not in exp.stimuli:
+                raise lx.error(f"level {level!r} is not a stimulus; declared stimuli: "
+                               f"{', '.join(exp.stimuli)}", ("factors", fname, "levels", i))
+    elif len(exp.stimuli) != 1:
+        raise lx.error("several stimuli are declared but no factor chooses among them "
+                       "(add a factor with 'sets: stimulus')", ("factors",))
+
+    for fname in exp.factors:
+        if fname in RESERVED_COLUMNS:
+            raise lx.error(f"{fname!r} is a reserved column name of the trial log; "
+                           "choose another factor name", ("factors", fname))
+
+    _, enc_model = PIPELINES[exp.encoding.pipeline]
+    _, cod_model = CODINGS[exp.coding.protocol]
+    _validate_params(lx, enc_model, exp.encoding.params, ("encoding", "params"))
+    _validate_params(lx, cod_model, exp.coding.params, ("coding", "params"))
+    for fname, f in exp.factors.items():
+        if f.sets not in ("coding", "encoding"):
+            continue
+        base = exp.coding.params if f.sets == "coding" else exp.encoding.params
+        model = cod_model if f.sets == "coding" else enc_model
+        for level in f.level_names:
+            kp = ("factors", fname, "levels", level)
+            _validate_params(lx, model, {**base, **f.params_of(level)}, kp,
+                             only=set(f.params_of(level)), fallback=(f.sets, "params"))
+
+    q = exp.question
+    if q.correct is not None:
+        c = q.correct
+        if c.startswith("{") and c.endswith("}"):
+            ref = c[1:-1]
+            if ref == "stimulus":
+                values = list(exp.stimuli)
+            elif ref in exp.factors:
+                values = exp.factors[ref].level_names
+            else:
+                raise lx.error(f"{c!r} names no factor; use '{{factor}}' with one of "
+                               f"{', '.join(exp.factors)}, or '{{stimulus}}'",
+                               ("question", "correct"))
+            missing = [v for v in values if v not in q.options]
+            if missing:
+                raise lx.error(f"the correct answers {missing} are not among the options "
+                               f"{q.options}", ("question", "correct"))
+        elif c not in q.options:
+            raise lx.error(f"{c!r} is not one of the options {q.options}", ("question", "correct"))
+
+
+def _validate_params(lx: LoadedExperiment, model, params: dict, keypath: KeyPath,
+                     only: set[str] | None = None, fallback: KeyPath = ()) -> Any:
+    """Validate ``params`` against ``model``; errors point at ``keypath``.
+
+    For a factor level (``only`` = the keys the level overrides), an error in a
+    key the level does not set points at ``fallback``, where that key came from.
+    """
+    try:
+        return model.model_validate(params)
+    except ValidationError as exc:
+        loc = tuple(exc.errors(include_url=False)[0]["loc"])
+        if only is not None and loc and loc[0] not in only:
+            keypath = fallback
+        fake = LoadedYaml(data=None, path=lx.source.path, text="", lines=lx.source.lines)
+        raise format_validation_error(exc, fake, root=keypath) from None

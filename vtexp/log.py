@@ -1,0 +1,111 @@
+"""Crash-safe files: append-only TSV logs and atomically replaced JSON.
+
+Each TSV row is written with a single ``write`` and ``fsync``'d before the
+next trial starts, so a killed process (SIGKILL, power cut after the fsync)
+loses no completed trial; at worst the row being written is cut short, which
+readers detect (no final newline) and report. JSON records are replaced
+atomically (write to a temporary file, fsync, rename, fsync the folder).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Iterable
+
+from .errors import SessionError
+
+NA = "n/a"   # BIDS's marker for a missing value
+
+
+def fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def format_value(v: Any) -> str:
+    if v is None:
+        return NA
+    if isinstance(v, bool):
+        return "1" if v else "0"
+    if isinstance(v, float):
+        if math.isnan(v):
+            return NA
+        return repr(round(v, 6))
+    s = str(v)
+    # A tab or newline inside a value would shift columns or split the row.
+    return s.replace("\t", " ").replace("\r", " ").replace("\n", " ")
+
+
+class TsvLog:
+    """An append-only TSV file, created exclusively; every row fsync'd."""
+
+    def __init__(self, path: Path, columns: Iterable[str]):
+        self.path = Path(path)
+        self.columns = list(columns)
+        try:
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND,
+                               0o644)
+        except FileExistsError:
+            raise SessionError(f"{self.path} already exists; nothing was overwritten") from None
+        except OSError as e:
+            raise SessionError(f"cannot create {self.path}: {e.strerror}") from None
+        self._write("\t".join(self.columns) + "\n")
+        fsync_dir(self.path.parent)
+
+    def append(self, row: dict[str, Any]) -> None:
+        unknown = set(row) - set(self.columns)
+        if unknown:
+            raise ValueError(f"columns not in the log: {sorted(unknown)}")
+        self._write("\t".join(format_value(row.get(c)) for c in self.columns) + "\n")
+
+    def _write(self, text: str) -> None:
+        data = text.encode("utf-8")
+        try:
+            n = os.write(self._fd, data)
+            if n != len(data):
+                raise OSError(28, "short write (disk full?)")
+            os.fsync(self._fd)
+        except OSError as e:
+            raise SessionError(f"cannot write to {self.path}: {e.strerror or e}; the session "
+                               "stops here and every row written before is intact") from None
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    text = json.dumps(data, indent=2, ensure_ascii=False, default=str) + "\n"
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+        fsync_dir(path.parent)
+    except OSError as e:
+        raise SessionError(f"cannot write {path}: {e.strerror or e}") from None
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 16), b""):
+            h.update(chunk)
+    return h.hexdigest()

@@ -1,0 +1,20 @@
+"""Responders behind one protocol (:class:`vtexp.responders.base.Responder`)."""
+
+from __future__ import annotations
+
+from ..errors import InputError
+from .base import Responder, Response, correct_answer
+from .scripted import ScriptedResponder, make_scripted
+
+
+def make_responder(spec: str, participant: str, session: int) -> Responder:
+    """Build a responder from a ``--responder`` spec such as ``scripted:correct``."""
+    kind, _, arg = spec.partition(":")
+    if kind == "scripted":
+        return make_scripted(arg or "correct", participant, session)
+    raise InputError(f"unknown responder {spec!r}; available: scripted:correct, "
+                     "scripted:random, scripted:accuracy=P, scripted:answers=FILE",
+                     key="--responder")
+
+
+__all__ = ["Responder", "Response", "ScriptedResponder", "correct_answer", "make_responder"]

@@ -1,0 +1,294 @@
+"""The session engine: plays the trial list, asks, and logs every trial.
+
+One folder per session, following the BIDS behavioural convention::
+
+    DATA/<experiment>/sub-<P>/ses-<N>/
+        sub-<P>_ses-<N>_task-<T>_beh.tsv     one row per trial (append + fsync)
+        sub-<P>_ses-<N>_task-<T>_beh.json    column descriptions, TaskName, Instructions
+        sub-<P>_ses-<N>_task-<T>_events.tsv  every pulse the device reported playing
+        session.json                         what produced the session, and how it ended
+
+``session.json`` is written with status ``running`` before the first trial and
+rewritten at the end with the status (``completed``, ``aborted``, ``failed``),
+the end time and the SHA-256 of each file. A session folder is created
+exclusively: a run never overwrites an existing session.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import re
+import sys
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from importlib import metadata
+from pathlib import Path
+from typing import Callable, Protocol
+
+from . import __version__
+from .compile import Condition, compile_conditions
+from .design import Trial, trial_list
+from .devices.base import DeviceBase
+from .errors import InputError, SessionError
+from .experiment import LoadedExperiment
+from .log import TsvLog, sha256_file, write_json_atomic
+from .model import DeviceProfile, PlayReport, TrialRecord
+from .responders.base import Responder, correct_answer
+
+PARTICIPANT = re.compile(r"^[A-Za-z0-9]{1,64}$")
+FORMAT_VERSION = 1
+
+
+def now_iso() -> str:
+    return datetime.now(timezone.utc).astimezone().isoformat(timespec="milliseconds")
+
+
+def check_participant(participant: str) -> str:
+    """A participant id is a BIDS label: letters and digits only (no '/', '..', '_')."""
+    if not isinstance(participant, str) or not PARTICIPANT.match(participant):
+        raise InputError(f"participant id {participant!r} is not a plain token; use 1-64 "
+                         "letters and digits (e.g. 01, P07, anna)", key="--participant")
+    return participant
+
+
+def check_session(session: int) -> int:
+    if not isinstance(session, int) or session < 1 or session > 9999:
+        raise InputError(f"session must be a whole number from 1 to 9999 (got {session!r})",
+                         key="--session")
+    return session
+
+
+@dataclass(frozen=True)
+class SessionPaths:
+    dir: Path
+    prefix: str
+
+    @classmethod
+    def of(cls, data_dir: Path | str, experiment: str, task: str, participant: str,
+           session: int) -> "SessionPaths":
+        d = Path(data_dir) / experiment / f"sub-{participant}" / f"ses-{session}"
+        return cls(d, f"sub-{participant}_ses-{session}_task-{task}")
+
+    @property
+    def beh_tsv(self) -> Path:
+        return self.dir / f"{self.prefix}_beh.tsv"
+
+    @property
+    def beh_json(self) -> Path:
+        return self.dir / f"{self.prefix}_beh.json"
+
+    @property
+    def events_tsv(self) -> Path:
+        return self.dir / f"{self.prefix}_events.tsv"
+
+    @property
+    def session_json(self) -> Path:
+        return self.dir / "session.json"
+
+
+class TrialSink(Protocol):
+    """Receives each trial's record after it is safely on disk (progress, preview...)."""
+
+    def __call__(self, record: TrialRecord, trial: Trial, total: int) -> None: ...
+
+
+@dataclass
+class SessionResult:
+    paths: SessionPaths
+    status: str
+    records: list[TrialRecord] = field(default_factory=list)
+    seed: int = 0
+
+
+EVENT_COLUMNS = ["trial", "play", "row", "col", "scheduled_onset_ms", "onset_ms",
+                 "duration_ms", "level", "amplitude_v", "frequency_hz", "pulse_width_ms"]
+
+
+def trial_columns(factors: list[str]) -> list[str]:
+    return (["trial", "practice", "repetition", *factors, "stimulus", "question", "answer",
+             "correct_answer", "correct", "rt_s", "replays", "stimulus_onset_ms",
+             "stimulus_duration_ms", "n_pulses", "status", "started_at"])
+
+
+def sidecar(lx: LoadedExperiment) -> dict:
+    """The BIDS ``_beh.json``: what each column means."""
+    exp = lx.experiment
+    cols: dict[str, dict] = {
+        "trial": {"Description": "trial number in the session, from 1"},
+        "practice": {"Description": "1 for a practice trial (not analysed), else 0"},
+        "repetition": {"Description": "presentation number of this condition, from 1"},
+    }
+    for name, f in exp.factors.items():
+        cols[name] = {"Description": f.description or f"level of factor '{name}'",
+                      "Levels": {lv: (f"sets {f.sets} parameters {f.params_of(lv)}"
+                                      if f.params_of(lv) else lv) for lv in f.level_names}}
+    cols.update({
+        "stimulus": {"Description": "name of the stimulus in the experiment file"},
+        "question": {"Description": "name of the question answered"},
+        "answer": {"Description": "the option chosen", "Levels": {o: o for o in
+                                                                 exp.question.options}},
+        "correct_answer": {"Description": "the option scored as correct, n/a if unscored"},
+        "correct": {"Description": "1 if answer equals correct_answer, 0 if not, n/a if "
+                                   "unscored"},
+        "rt_s": {"Description": "reaction time from the end of the stimulus",
+                 "Units": "s"},
+        "replays": {"Description": "times the participant felt the stimulus again"},
+        "stimulus_onset_ms": {"Description": "device clock at the stimulus onset",
+                              "Units": "ms"},
+        "stimulus_duration_ms": {"Description": "duration of the played schedule",
+                                 "Units": "ms"},
+        "n_pulses": {"Description": "number of actuator pulses in the stimulus"},
+        "status": {"Description": "ok, skipped, or device_error"},
+        "started_at": {"Description": "wall-clock start of the trial, ISO 8601"},
+    })
+    return {"TaskName": exp.title, "TaskDescription": exp.description.strip(),
+            "Instructions": exp.instructions.strip() or exp.question.prompt,
+            "vtexpTask": exp.name, **cols}
+
+
+def environment() -> dict:
+    pkgs = {}
+    for name in ("numpy", "pandas", "pydantic", "PyYAML", "statsmodels", "pyserial",
+                 "opencv-contrib-python-headless", "opencv-python", "psychopy"):
+        try:
+            pkgs[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            pass
+    return {"vtexp": __version__, "python": sys.version.split()[0],
+            "platform": platform.platform(), "machine": platform.machine(),
+            "hostname": platform.node(), "packages": pkgs}
+
+
+def run_session(lx: LoadedExperiment, participant: str, session: int, device: DeviceBase,
+                responder: Responder, data_dir: Path | str, *,
+                conditions: list[Condition] | None = None,
+                sinks: tuple[TrialSink, ...] = (), command: list[str] | None = None
+                ) -> SessionResult:
+    """Run one session and log it. Raises SessionError if the session already exists."""
+    exp = lx.experiment
+    check_participant(participant)
+    check_session(session)
+    profile: DeviceProfile = device.profile
+    if profile.name != exp.device:
+        raise InputError(f"the experiment is declared for device {exp.device!r}, but the "
+                         f"device opened is {profile.name!r}", key="--device")
+    conditions = conditions or compile_conditions(lx, profile)
+    trials, seed = trial_list(exp, conditions, participant, session)
+    paths = SessionPaths.of(data_dir, exp.name, exp.task_label, participant, session)
+
+    try:
+        paths.dir.parent.mkdir(parents=True, exist_ok=True)
+        paths.dir.mkdir()
+    except FileExistsError:
+        raise SessionError(f"session {session} of participant {participant} already exists in "
+                           f"{paths.dir}; nothing was overwritten. Use another --session "
+                           "number.") from None
+    except OSError as e:
+        raise SessionError(f"cannot create the session folder {paths.dir}: "
+                           f"{e.strerror}") from None
+
+    info = device.open()
+    record: dict = {
+        "format": "vtexp-session", "format_version": FORMAT_VERSION,
+        "experiment": exp.name, "task": exp.task_label, "participant": participant,
+        "session": session, "status": "running", "started_at": now_iso(), "ended_at": None,
+        "seed": seed, "seed_source": "design.seed" if exp.design.seed is not None
+        else "derived from (experiment, participant, session)",
+        "n_trials_planned": len(trials),
+        "trial_order": [t.condition.index for t in trials],
+        "conditions": [{"index": c.index, "levels": c.levels, "stimulus": c.stimulus,
+                        "encoding": c.encoding_params, "coding": c.coding_params}
+                       for c in conditions],
+        "experiment_file": {"path": str(lx.path), "sha256": lx.sha256, "text": lx.source.text},
+        "experiment_loaded": exp.model_dump(mode="json"),
+        "device": info.model_dump(mode="json"),
+        "device_profile": profile.model_dump(mode="json"),
+        "responder": getattr(responder, "description", type(responder).__name__),
+        "command": command or sys.argv,
+        "environment": environment(),
+        "files": {"beh": paths.beh_tsv.name, "sidecar": paths.beh_json.name,
+                  "events": paths.events_tsv.name},
+        "checksums": None, "n_trials_logged": 0, "reason": None,
+    }
+    write_json_atomic(paths.session_json, record)
+    write_json_atomic(paths.beh_json, sidecar(lx))
+    factors = list(exp.factors)
+    beh = TsvLog(paths.beh_tsv, trial_columns(factors))
+    events = TsvLog(paths.events_tsv, EVENT_COLUMNS)
+    result = SessionResult(paths, "running", seed=seed)
+    status, reason = "failed", None
+    try:
+        for trial in trials:
+            rec, plays = _run_trial(exp, trial, device, responder)
+            beh.append({**{f: trial.levels[f] for f in factors},
+                        **rec.model_dump(exclude={"condition"})})
+            for i, rep in enumerate(plays):
+                for p in rep.pulses:
+                    events.append({"trial": trial.number, "play": i, "row": p.row, "col": p.col,
+                                   "scheduled_onset_ms": p.scheduled_onset_ms,
+                                   "onset_ms": rep.started_at_ms + p.onset_ms,
+                                   "duration_ms": p.duration_ms, "level": p.level,
+                                   "amplitude_v": p.train.amplitude_v if p.train else None,
+                                   "frequency_hz": p.train.frequency_hz if p.train else None,
+                                   "pulse_width_ms": p.train.pulse_width_ms if p.train else None})
+            result.records.append(rec)
+            record["n_trials_logged"] = len(result.records)
+            for sink in sinks:
+                sink(rec, trial, len(trials))
+            _wait(device, exp.design.iti_ms)
+        status = "completed"
+    except KeyboardInterrupt:
+        status, reason = "aborted", "interrupted by the experimenter"
+        raise
+    except BaseException as e:
+        status, reason = "failed", f"{type(e).__name__}: {e}"
+        raise
+    finally:
+        try:
+            device.all_off()
+        finally:
+            beh.close()
+            events.close()
+            record.update(status=status, reason=reason, ended_at=now_iso(),
+                          n_trials_logged=len(result.records),
+                          checksums={f.name: sha256_file(f) for f in
+                                     (paths.beh_tsv, paths.beh_json, paths.events_tsv)})
+            write_json_atomic(paths.session_json, record)
+            result.status = status
+    return result
+
+
+def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
+               ) -> tuple[TrialRecord, list[PlayReport]]:
+    started = now_iso()
+    schedule = trial.condition.schedule
+    plays = [device.play(schedule)]
+    q = exp.question
+
+    def replay() -> PlayReport:
+        if len(plays) - 1 >= q.replays:
+            raise SessionError(f"trial {trial.number}: no replays left "
+                               f"(the question allows {q.replays})")
+        plays.append(device.play(schedule))
+        return plays[-1]
+
+    resp = responder.ask(q, trial, replay if q.replays > 0 else None)
+    right = correct_answer(q, trial)
+    rec = TrialRecord(
+        trial=trial.number, repetition=trial.repetition, stimulus=trial.stimulus,
+        condition=trial.levels, question=q.name, answer=resp.answer, correct_answer=right,
+        correct=None if right is None else resp.answer == right, rt_s=resp.rt_s,
+        replays=len(plays) - 1, stimulus_onset_ms=plays[0].started_at_ms,
+        stimulus_duration_ms=plays[0].duration_ms, n_pulses=len(plays[0].pulses),
+        started_at=started)
+    return rec, plays
+
+
+def _wait(device: DeviceBase, ms: float) -> None:
+    wait = getattr(device, "wait", None)
+    if wait is not None:
+        wait(ms)
+    elif ms > 0:
+        time.sleep(ms / 1000.0)
