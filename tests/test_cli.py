@@ -67,6 +67,17 @@ def test_demo_runs_logs_and_reports(cli, tmp_path):
     assert all(json.loads(s.read_text())["status"] == "completed" for s in sessions)
     assert (root / "report" / "report.md").is_file()
     assert "Report:" in r.stdout and str(root / "report" / "report.md") in r.stdout
+    # The study's reanalysis script reproduces the paper's Table 1 layout from the data.
+    import subprocess
+    import sys
+    from conftest import ROOT
+    t1 = subprocess.run([sys.executable, str(ROOT / "analysis" / "duration_interval_grid.py"),
+                         str(root), "--out", str(tmp_path / "t1.csv")], capture_output=True,
+                        text=True)
+    assert t1.returncode == 0, t1.stderr
+    table = pd.read_csv(tmp_path / "t1.csv", index_col=0)
+    assert list(table.columns) == ["triangle", "circle", "square", "rectangle", "mean"]
+    assert len(table) == 8 and table.to_numpy().min() >= 0 and table.to_numpy().max() <= 1
     # A second demo replaces the first; a folder the demo did not make is left alone.
     assert cli("demo", "--data", str(root), "--participants", "1").returncode == 0
     assert len(list(root.glob("duration_interval_grid/sub-*"))) == 1

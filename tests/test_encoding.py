@@ -93,3 +93,17 @@ def test_image_files_of_any_depth_and_colour(tmp_path):
 def test_cv2_is_the_contrib_build():
     from vtexp._cv2 import cv2
     assert hasattr(cv2(), "ximgproc")
+
+
+def test_rotated_and_scaled_shapes_mostly_give_one_closed_loop():
+    # docs/decisions.md: starting the search one step counter-clockwise of the
+    # inherited direction closes 214 of these 216 outlines (152 without it).
+    from vtexp.encoding.edge_trace import boundary, cells_covered, object_mask
+    good = 0
+    for shape in SHAPES:
+        for rot in range(0, 90, 5):
+            for size in (0.5, 0.7, 0.9):
+                img = render_shape(shape=shape, rotation_deg=rot, size=size)
+                res = follow_contour(boundary(cells_covered(object_mask(img), 8, 6)))
+                good += len(res) == 1 and res[0][2]
+    assert good >= 214

@@ -205,3 +205,26 @@ def test_truncated_last_row_is_reported_and_ignored(tmp_path, grid_lx):
     assert len(data.trials) == 96
     assert any("last row is incomplete" in w for w in data.warnings)
     assert any("changed since the session ended" in w for w in data.warnings)
+
+
+def test_sigterm_aborts_cleanly_and_marks_the_session(tmp_path):
+    # sim:realtime takes the stimuli's real time, so the session is still running
+    # when the signal arrives; the CLI turns SIGTERM into an orderly abort.
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "vtexp", "run", str(GRID), "-p", "T",
+                             "--device", "sim:realtime", "--responder", "scripted:correct",
+                             "--data", str(tmp_path)], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    paths = SessionPaths.of(tmp_path, "duration_interval_grid", "durationIntervalGrid", "T", 1)
+    deadline = time.monotonic() + 60
+    while not paths.beh_tsv.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert "every actuator was turned off" in err and "Traceback" not in err
+    meta = json.loads(paths.session_json.read_text())
+    assert meta["status"] == "aborted" and meta["checksums"]
+    assert read_session(paths.dir).warnings == [f"{paths.dir}: session aborted (interrupted by "
+                                                "the experimenter)"]

@@ -131,7 +131,7 @@ def cmd_run(args) -> int:
 
 
 def cmd_analyze(args) -> int:
-    from .analysis import load_sessions
+    from .analysis import load_sessions, recognition_rates
     from .analysis.report import markdown_table, write_rate_report
 
     trials, sessions = load_sessions(args.dirs)
@@ -144,11 +144,15 @@ def cmd_analyze(args) -> int:
         first = Path(args.dirs[0])
         out = (first if not (first / "session.json").exists() else Path(".")) / "report"
     rep = write_rate_report(trials, sessions, out)
-    for key, t in rep.tables.items():
-        if key.endswith("/by_condition") or key.endswith("/by_participant"):
-            continue
-        _out(f"\n{key.replace('/', ': rate ').replace('_', ' ')}")
-        _out(markdown_table(t.drop(columns="experiment")))
+    for exp in sorted(trials["experiment"].unique()):
+        sub = trials[trials["experiment"] == exp]
+        factors = next(s.factors for s in sessions if s.meta["experiment"] == exp)
+        per = recognition_rates(sub, factors, per_participant=True)
+        wide = per.pivot_table(index=factors, columns="participant", values="rate")
+        wide.columns = [f"sub-{c}" for c in wide.columns]
+        wide["mean"] = recognition_rates(sub, factors).set_index(factors)["rate"]
+        _out(f"\n{exp}: recognition rate per condition (rows) and participant (columns)")
+        _out(markdown_table(wide.reset_index()))
     _out(f"\n{len(sessions)} session(s), {len(trials)} trials. Tables and report in {out}/ "
          f"(report: {rep.markdown})")
     return 0

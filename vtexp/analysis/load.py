@@ -22,7 +22,13 @@ class SessionData:
 
     @property
     def factors(self) -> list[str]:
-        return list(self.meta.get("experiment_loaded", {}).get("factors", {}))
+        return list(self.levels)
+
+    @property
+    def levels(self) -> dict[str, list[str]]:
+        """Each factor's levels in the order the experiment declared them."""
+        factors = self.meta.get("experiment_loaded", {}).get("factors", {})
+        return {name: list(f["levels"]) for name, f in factors.items()}
 
 
 def find_sessions(paths: list[Path | str]) -> list[Path]:
@@ -108,6 +114,15 @@ def load_sessions(paths: list[Path | str], *, include_practice: bool = False
                          + ", ".join(map(str, paths)) + ")")
     sessions = [read_session(d) for d in dirs]
     df = pd.concat([s.trials for s in sessions], ignore_index=True)
+    # Factor columns keep the declared order of their levels (tables read like the paper).
+    order: dict[str, list[str]] = {}
+    for s in sessions:
+        for name, levels in s.levels.items():
+            known = order.setdefault(name, [])
+            known.extend(lv for lv in levels if lv not in known)
+    for name, levels in order.items():
+        extra = [v for v in df[name].dropna().unique() if v not in levels]
+        df[name] = pd.Categorical(df[name], categories=levels + sorted(extra), ordered=True)
     if not include_practice:
         df = df[df["practice"].fillna(0) == 0].reset_index(drop=True)
     return df, sessions
