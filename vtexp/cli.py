@@ -181,7 +181,7 @@ def cmd_demo(args) -> int:
     _out(f"  experiment: {path}  ({exp.reference})")
     _out(f"  device: sim backend with profile {exp.device}; {len(conds)} conditions x "
          f"{exp.design.repetitions} repetitions per participant")
-    _out(f"  answers: scripted responders, correct with the probability shown "
+    _out("  answers: scripted responders, correct with the probability shown "
          "(a stand-in for people; no perception is modelled)")
     accuracies = [0.9, 0.8, 0.7, 0.6][: args.participants] if args.participants <= 4 else \
         [0.9 - 0.3 * i / (args.participants - 1) for i in range(args.participants)]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
-from typing import Sequence
+from collections.abc import Sequence
 
 from .compile import Condition
 from .experiment import Experiment
@@ -20,7 +20,7 @@ from .experiment import Experiment
 
 def derive_seed(experiment: str, participant: str, session: int) -> int:
     """64-bit seed from (experiment, participant, session)."""
-    msg = f"vtexp-trial-order\x00{experiment}\x00{participant}\x00{session}".encode("utf-8")
+    msg = f"vtexp-trial-order\x00{experiment}\x00{participant}\x00{session}".encode()
     return int.from_bytes(hashlib.sha256(msg).digest()[:8], "big")
 
 

@@ -75,8 +75,9 @@ class FactorSpec(Model):
         if self.sets in ("coding", "encoding") and not isinstance(self.levels, dict):
             raise ValueError(f"a factor that sets {self.sets} parameters needs levels as a "
                              "mapping: level name -> parameters")
-        if self.sets == "stimulus" and isinstance(self.levels, dict):
-            raise ValueError("a factor that sets the stimulus lists stimulus names")
+        if self.sets in ("stimulus", "none") and isinstance(self.levels, dict):
+            raise ValueError(f"a factor that sets {self.sets} lists its level names; "
+                             "parameters per level need 'sets: coding' or 'sets: encoding'")
         return self
 
     @property

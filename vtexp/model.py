@@ -29,7 +29,7 @@ from .errors import InputError
 class Model(BaseModel):
     """Base: unknown keys are errors; JSON round trip helpers."""
 
-    model_config = ConfigDict(extra="forbid", frozen=False, validate_assignment=False)
+    model_config = ConfigDict(extra="forbid")
 
     def to_json(self, **kw: Any) -> str:
         return self.model_dump_json(indent=kw.pop("indent", 2), **kw)
@@ -138,7 +138,7 @@ class DeviceProfile(Model):
         return self.geometry.cols
 
     @classmethod
-    def load(cls, name_or_path: str | Path) -> "DeviceProfile":
+    def load(cls, name_or_path: str | Path) -> DeviceProfile:
         """Load a profile by name (``protocols/devices/NAME.yaml``) or from a path."""
         from .resources import devices_dir
         from .yamlio import format_validation_error, load_yaml

@@ -16,7 +16,6 @@ exclusively: a run never overwrites an existing session.
 
 from __future__ import annotations
 
-import os
 import platform
 import re
 import sys
@@ -25,7 +24,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from importlib import metadata
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Protocol
 
 from . import __version__
 from .compile import Condition, compile_conditions
@@ -67,7 +66,7 @@ class SessionPaths:
 
     @classmethod
     def of(cls, data_dir: Path | str, experiment: str, task: str, participant: str,
-           session: int) -> "SessionPaths":
+           session: int) -> SessionPaths:
         d = Path(data_dir) / experiment / f"sub-{participant}" / f"ses-{session}"
         return cls(d, f"sub-{participant}_ses-{session}_task-{task}")
 

@@ -43,7 +43,7 @@ class SimDevice(DeviceBase):
     def _open(self) -> DeviceInfo:
         self.history.append(SimEvent(self.clock_ms, "open"))
         return DeviceInfo(backend="sim", profile=self.profile.name, rows=self.profile.rows,
-                          cols=self.profile.cols, firmware=f"vtexp-sim", protocol="in-process",
+                          cols=self.profile.cols, firmware="vtexp-sim", protocol="in-process",
                           details={"clock": "virtual" if not self.realtime else "realtime"})
 
     def _play(self, schedule: Schedule) -> PlayReport:

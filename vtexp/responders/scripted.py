@@ -14,7 +14,7 @@ Random choices are deterministic: drawn from a stream seeded by
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 from ..design import HashRandom, Trial, derive_seed
 from ..errors import InputError
