@@ -1,8 +1,4 @@
-"""Coding: a Pattern becomes a Schedule of timed pulses for one device profile.
-
-Protocols are looked up by name in :data:`CODINGS`; each entry holds the
-function and the pydantic model of its parameters.
-"""
+"""Sequential tracing of an ordered outline (seed 001, §3.3 and §4.1)."""
 
 from __future__ import annotations
 
@@ -10,8 +6,8 @@ from typing import Annotated
 
 from pydantic import Field
 
-from .errors import InputError
-from .model import DeviceProfile, LevelDrive, Model, Pattern, Pulse, Schedule
+from ..errors import InputError
+from ..model import DeviceProfile, LevelDrive, Model, Pattern, Pulse, Schedule
 
 
 class SequentialTraceParams(Model):
@@ -51,8 +47,3 @@ def sequential_trace(pattern: Pattern, profile: DeviceProfile, *, duration_ms: f
     return Schedule(device=profile.name, pulses=pulses, coding="sequential-trace",
                     params={"duration_ms": duration_ms, "soa_ms": soa_ms, "loops": loops,
                             "level": level, "vertex_level": vertex_level})
-
-
-CODINGS = {
-    "sequential-trace": (sequential_trace, SequentialTraceParams),
-}

@@ -1,0 +1,17 @@
+"""Coding: a Pattern becomes a Schedule of timed pulses for one device profile.
+
+One module per paper's coding scheme; protocols are looked up by name in
+:data:`CODINGS`, each entry holding the function
+``f(pattern, profile, **params) -> Schedule`` and the pydantic model of its
+parameters (what an experiment's YAML may declare).
+"""
+
+from __future__ import annotations
+
+from .trace import SequentialTraceParams, sequential_trace
+
+CODINGS = {
+    "sequential-trace": (sequential_trace, SequentialTraceParams),
+}
+
+__all__ = ["CODINGS", "sequential_trace", "SequentialTraceParams"]
