@@ -1,9 +1,4 @@
-"""Stimulus images: generators and image files, as a camera would see them.
-
-Every generator returns a 2-D ``uint8`` grayscale image (bright object on a
-darker background, like a light card held before a camera). Parameters are
-plain keyword arguments so that experiments can declare them in YAML.
-"""
+"""Filled 2-D shapes: triangle, circle, square, rectangle (seeds 001 and 002)."""
 
 from __future__ import annotations
 
@@ -13,9 +8,8 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
-from ._cv2 import cv2
-from .errors import InputError
-from .model import Model
+from .._cv2 import cv2
+from ..model import Model
 
 SHAPES = ("triangle", "circle", "square", "rectangle")
 
@@ -78,27 +72,4 @@ def render_shape(**params) -> np.ndarray:
     if p.noise_sd > 0:
         rng = np.random.default_rng(p.seed)
         img = np.clip(img + rng.normal(0, p.noise_sd, img.shape), 0, 255).astype(np.uint8)
-    return img
-
-
-GENERATORS = {"shape": (render_shape, ShapeParams)}
-
-
-def read_image(path: str | Path) -> np.ndarray:
-    """Read an image file (PNG, JPEG, ...; 8 or 16 bit; gray or colour) as 8-bit gray."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError("image file not found", path=str(p))
-    cv = cv2()
-    data = np.fromfile(str(p), dtype=np.uint8)
-    img = cv.imdecode(data, cv.IMREAD_UNCHANGED) if data.size else None
-    if img is None:
-        raise InputError("not a readable image (expected PNG, JPEG, BMP or TIFF)", path=str(p))
-    if img.ndim == 3:
-        code = cv.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv.COLOR_BGR2GRAY
-        img = cv.cvtColor(img, code)
-    if img.dtype == np.uint16:
-        img = (img / 257.0).round().astype(np.uint8)
-    elif img.dtype != np.uint8:
-        img = cv.normalize(img.astype(np.float64), None, 0, 255, cv.NORM_MINMAX).astype(np.uint8)
     return img

@@ -1,0 +1,45 @@
+"""Stimulus images: generators and image files, as a camera would see them.
+
+Every generator returns a 2-D ``uint8`` grayscale image (a bright object on a
+darker background, like a light object before a camera). Generators are
+looked up by name in :data:`GENERATORS`, each entry holding the function and
+the pydantic model of its parameters (the keys an experiment may declare under
+``params:``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .._cv2 import cv2
+from ..errors import InputError
+from .shapes import SHAPES, ShapeParams, render_shape
+
+GENERATORS = {
+    "shape": (render_shape, ShapeParams),
+}
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an image file (PNG, JPEG, ...; 8 or 16 bit; gray or colour) as 8-bit gray."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("image file not found", path=str(p))
+    cv = cv2()
+    data = np.fromfile(str(p), dtype=np.uint8)
+    img = cv.imdecode(data, cv.IMREAD_UNCHANGED) if data.size else None
+    if img is None:
+        raise InputError("not a readable image (expected PNG, JPEG, BMP or TIFF)", path=str(p))
+    if img.ndim == 3:
+        code = cv.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv.COLOR_BGR2GRAY
+        img = cv.cvtColor(img, code)
+    if img.dtype == np.uint16:
+        img = (img / 257.0).round().astype(np.uint8)
+    elif img.dtype != np.uint8:
+        img = cv.normalize(img.astype(np.float64), None, 0, 255, cv.NORM_MINMAX).astype(np.uint8)
+    return img
+
+
+__all__ = ["GENERATORS", "SHAPES", "ShapeParams", "read_image", "render_shape"]
