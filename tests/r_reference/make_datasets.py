@@ -1,0 +1,148 @@
+"""Write the datasets that the R reference scripts and the tests both read.
+
+Run once (the CSVs are committed; rerunning rewrites the same files):
+
+    python tests/r_reference/make_datasets.py
+
+Each dataset is drawn from numpy's PCG64 generator with a fixed seed, so this
+script reproduces the committed files byte for byte.
+
+| file | design | why |
+|---|---|---|
+| oneway_sphericity.csv | 1 factor, 4 levels, 12 participants, one row per cell | variances 1 : 4 : 16 : 36 and unequal correlations: Mauchly's test rejects sphericity, GG and HF differ |
+| seed000_2x2.csv | timing (fixed, varied) × intensity (linear, nonlinear), 15 participants, rate of 10 trials per cell | the layout of seed 000 §4 (modes 3–6); cell totals 76, 71, 112, 79 of 150 reproduce the paper's 50.7, 47.3, 74.7, 52.7 % |
+| grid_3x4.csv | shape (3) × soa (4), 14 participants, one row per cell | a 3 × 4 with sphericity in question for both factors and the interaction |
+| threeway.csv | display (2) × timing (3) × intensity (3), 10 participants, two rows per cell | a three-factor within design; afex averages the two rows per cell |
+| missing_cell.csv | shape (2) × timing (3), 12 participants, 3 trials (correct 0/1) per cell | participants 04 and 09 lack every trial of one cell; afex drops them with a warning |
+| ratings.csv | frequency (25, 40, 50 Hz), 9 participants, ratings 0–4 | ordinal ratings with ties (seed 002's whirlpool scale) for Friedman and Wilcoxon |
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+OUT = Path(__file__).resolve().parents[1] / "data"
+
+
+def pid(i: int) -> str:
+    return f"{i + 1:02d}"
+
+
+def oneway_sphericity() -> pd.DataFrame:
+    rng = np.random.Generator(np.random.PCG64(1001))
+    sd = np.array([1.0, 2.0, 4.0, 6.0])
+    corr = np.array([[1.0, 0.8, 0.3, 0.0],
+                     [0.8, 1.0, 0.5, 0.1],
+                     [0.3, 0.5, 1.0, 0.6],
+                     [0.0, 0.1, 0.6, 1.0]])
+    cov = corr * np.outer(sd, sd)
+    mu = np.array([10.0, 11.0, 13.5, 12.0])
+    y = rng.multivariate_normal(mu, cov, size=12)
+    rows = [(pid(i), lv, round(float(y[i, j]), 4))
+            for i in range(12) for j, lv in enumerate(["100", "200", "300", "400"])]
+    return pd.DataFrame(rows, columns=["participant", "soa", "rt"])
+
+
+def seed000_2x2() -> pd.DataFrame:
+    # Correct answers out of 10 per participant and mode; totals fixed to the paper's rates.
+    rng = np.random.Generator(np.random.PCG64(1002))
+    cells = [("fixed", "linear", 76), ("fixed", "nonlinear", 71),
+             ("varied", "linear", 112), ("varied", "nonlinear", 79)]
+    ability = rng.normal(0, 0.12, size=15)
+    rows = []
+    for timing, intensity, total in cells:
+        p = np.clip(total / 150 + ability, 0.02, 0.98)
+        k = rng.binomial(10, p)
+        while k.sum() != total:             # move single answers until the total is the paper's
+            i = rng.integers(15)
+            if k.sum() < total and k[i] < 10:
+                k[i] += 1
+            elif k.sum() > total and k[i] > 0:
+                k[i] -= 1
+        rows += [(pid(i), timing, intensity, k[i] / 10) for i in range(15)]
+    return pd.DataFrame(rows, columns=["participant", "timing", "intensity", "rate"])
+
+
+def grid_3x4() -> pd.DataFrame:
+    rng = np.random.Generator(np.random.PCG64(1003))
+    shapes, soas = ["triangle", "circle", "square"], ["100", "200", "300", "400"]
+    n = 14
+    subj = rng.normal(0, 0.6, size=n)
+    slope = rng.normal(0, 0.25, size=n)       # participants differ in their soa trend
+    rows = []
+    for i in range(n):
+        for a, s in enumerate(shapes):
+            for b, t in enumerate(soas):
+                mu = 2.0 + 0.3 * a + 0.2 * b - 0.15 * a * b * (b == 3)
+                y = mu + subj[i] + slope[i] * b + rng.normal(0, 0.25 + 0.15 * b)
+                rows.append((pid(i), s, t, round(float(y), 4)))
+    return pd.DataFrame(rows, columns=["participant", "shape", "soa", "score"])
+
+
+def threeway() -> pd.DataFrame:
+    rng = np.random.Generator(np.random.PCG64(1004))
+    n = 10
+    subj = rng.normal(0, 0.1, size=n)
+    rows = []
+    for i in range(n):
+        for (a, disp), (b, tim), (c, inten) in itertools.product(
+                enumerate(["static", "dynamic"]), enumerate(["fixed", "varied", "fast"]),
+                enumerate(["linear", "nonlinear", "flat"])):
+            mu = 0.3 + 0.25 * a + 0.05 * b * a - 0.04 * c + 0.03 * (b == 2) * (c == 1)
+            for _ in range(2):
+                y = mu + subj[i] + rng.normal(0, 0.08 + 0.04 * c)
+                rows.append((pid(i), disp, tim, inten, round(float(y), 4)))
+    return pd.DataFrame(rows, columns=["participant", "display", "timing", "intensity", "rate"])
+
+
+def missing_cell() -> pd.DataFrame:
+    rng = np.random.Generator(np.random.PCG64(1005))
+    shapes, timings = ["circle", "square"], ["200/100", "300/200", "300/500"]
+    n = 12
+    ability = rng.normal(0, 0.8, size=n)
+    rows = []
+    trial = 0
+    for i in range(n):
+        for a, s in enumerate(shapes):
+            for b, t in enumerate(timings):
+                if (pid(i), s, t) in (("04", "square", "300/500"), ("09", "circle", "200/100")):
+                    continue                  # the cell's trials were never logged
+                logit = -0.5 + 1.5 * (b > 0) + 0.4 * a + ability[i]
+                for _ in range(3):
+                    trial += 1
+                    correct = int(rng.random() < 1 / (1 + np.exp(-logit)))
+                    rows.append((pid(i), trial, s, t, correct))
+    return pd.DataFrame(rows, columns=["participant", "trial", "shape", "timing", "correct"])
+
+
+def ratings() -> pd.DataFrame:
+    rng = np.random.Generator(np.random.PCG64(1006))
+    n = 9
+    rows = []
+    for i in range(n):
+        base = rng.integers(0, 2)
+        for j, f in enumerate(["25", "40", "50"]):
+            r = int(np.clip(base + j + rng.integers(-1, 2), 0, 4))
+            rows.append((pid(i), f, r))
+    return pd.DataFrame(rows, columns=["participant", "frequency", "rating"])
+
+
+DATASETS = {"oneway_sphericity": oneway_sphericity, "seed000_2x2": seed000_2x2,
+            "grid_3x4": grid_3x4, "threeway": threeway, "missing_cell": missing_cell,
+            "ratings": ratings}
+
+
+def main() -> None:
+    OUT.mkdir(parents=True, exist_ok=True)
+    for name, make in DATASETS.items():
+        df = make()
+        df.to_csv(OUT / f"{name}.csv", index=False, lineterminator="\n")
+        print(f"{OUT / name}.csv: {len(df)} rows")
+
+
+if __name__ == "__main__":
+    main()
