@@ -15,6 +15,7 @@ script reproduces the committed files byte for byte.
 | threeway.csv | display (2) × timing (3) × intensity (3), 10 participants, two rows per cell | a three-factor within design; afex averages the two rows per cell |
 | missing_cell.csv | shape (2) × timing (3), 12 participants, 3 trials (correct 0/1) per cell | participants 04 and 09 lack every trial of one cell; afex drops them with a warning |
 | ratings.csv | frequency (25, 40, 50 Hz), 9 participants, ratings 0–4 | ordinal ratings with ties (seed 002's whirlpool scale) for Friedman and Wilcoxon |
+| trials_glmm.csv | display (2) × timing (3), 24 participants, 10 trials (correct 0/1) per cell | logistic model with a random intercept (SD 1), for the mixed logistic regression against lme4::glmer |
 """
 
 from __future__ import annotations
@@ -131,9 +132,22 @@ def ratings() -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["participant", "frequency", "rating"])
 
 
+def trials_glmm() -> pd.DataFrame:
+    rng = np.random.Generator(np.random.PCG64(1007))
+    rows = []
+    for i in range(24):
+        u = rng.normal(0, 1)
+        for a in ["static", "dynamic"]:
+            for b in ["fixed", "slow", "varied"]:
+                eta = 0.2 + u + 0.8 * (a == "static") - 0.6 * (b == "slow") + 1.0 * (b == "varied")
+                for _ in range(10):
+                    rows.append((pid(i), a, b, int(rng.random() < 1 / (1 + np.exp(-eta)))))
+    return pd.DataFrame(rows, columns=["participant", "display", "timing", "correct"])
+
+
 DATASETS = {"oneway_sphericity": oneway_sphericity, "seed000_2x2": seed000_2x2,
             "grid_3x4": grid_3x4, "threeway": threeway, "missing_cell": missing_cell,
-            "ratings": ratings}
+            "ratings": ratings, "trials_glmm": trials_glmm}
 
 
 def main() -> None:

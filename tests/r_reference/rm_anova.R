@@ -23,6 +23,9 @@
 #   factors averaged per participant), p.adjust("holm") and ("bonferroni"),
 #   Cohen's d_z = mean(diff) / sd(diff).
 # - ordinal: friedman.test and wilcox.test(paired = TRUE, correct = TRUE).
+# - trial-level model: lme4::glmer(correct ~ display + timing + (1 | participant),
+#   family = binomial) (Laplace), the frequentist fit that vtexp's Bayesian
+#   statsmodels fit is compared with (loosely: a different estimator).
 
 suppressMessages({
   library(afex)
@@ -206,6 +209,17 @@ for (name in names(designs)) {
 r <- as_factors(read_data("ratings"), "frequency", "participant")
 result$ordinal <- c(list(dataset = "ratings", dv = "rating", factor = "frequency", subject = "participant"),
                     ordinal_block(r, "participant", "rating", "frequency"))
+
+g <- read_data("trials_glmm")
+g$correct <- as.numeric(g$correct)
+g$display <- factor(g$display, levels = c("static", "dynamic"))
+g$timing <- factor(g$timing, levels = c("fixed", "slow", "varied"))
+gm <- lme4::glmer(correct ~ display + timing + (1 | participant), family = binomial, data = g)
+co <- summary(gm)$coefficients
+result$glmer <- list(dataset = "trials_glmm", term = rownames(co), estimate = num(co[, "Estimate"]),
+                     se = num(co[, "Std. Error"]),
+                     sd_participant = num(attr(lme4::VarCorr(gm)$participant, "stddev")),
+                     lme4 = as.character(packageVersion("lme4")))
 
 writeLines(toJSON(result, auto_unbox = TRUE, digits = NA, pretty = TRUE),
            file.path(here, "expected.json"))

@@ -1,0 +1,182 @@
+"""Confusion matrices, information transfer and Cohen's kappa, per condition.
+
+Every function takes the tidy trial table (one row per trial) and returns a
+tidy table. The stimulus is the scored correct answer (``correct_answer``) and
+the response the option chosen (``answer``); unscored trials are left out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ..errors import InputError
+from ..log import NA
+
+__all__ = ["confusion_matrix", "confusion_counts", "information_transfer", "agreement"]
+
+
+def _scored(trials: pd.DataFrame, stimulus: str, response: str, by: list[str]) -> pd.DataFrame:
+    missing = [c for c in [stimulus, response, *by] if c not in trials.columns]
+    if missing:
+        raise InputError(f"no column(s) {', '.join(map(repr, missing))} in the trial table")
+    keep = trials[stimulus].notna() & trials[response].notna() & (trials[stimulus] != NA)
+    return trials.loc[keep]
+
+
+def _labels(trials: pd.DataFrame, stimulus: str, response: str,
+            labels: list[str] | None) -> list[str]:
+    if labels is not None:
+        return list(labels)
+    out: list[str] = []
+    for col in (stimulus, response):
+        c = trials[col]
+        vals = list(c.cat.categories) if isinstance(c.dtype, pd.CategoricalDtype) else \
+            sorted(c.dropna().astype(str).unique())
+        out += [v for v in vals if v not in out]
+    return out
+
+
+def _groups(df: pd.DataFrame, by: list[str]):
+    if not by:
+        yield (), df
+        return
+    for key, g in df.groupby(by, observed=True, sort=True):
+        yield (key if isinstance(key, tuple) else (key,)), g
+
+
+def confusion_counts(stim: np.ndarray, resp: np.ndarray, labels: list[str]) -> np.ndarray:
+    """k × k counts: rows the stimulus presented, columns the response given."""
+    idx = {lv: i for i, lv in enumerate(labels)}
+    m = np.zeros((len(labels), len(labels)), dtype=np.int64)
+    for s, r in zip(stim, resp):
+        if s not in idx or r not in idx:
+            raise InputError(f"{s if s not in idx else r!r} is not one of the labels {labels}")
+        m[idx[s], idx[r]] += 1
+    return m
+
+
+def confusion_matrix(trials: pd.DataFrame, by: list[str] | str | None = None, *,
+                     stimulus: str = "correct_answer", response: str = "answer",
+                     labels: list[str] | None = None) -> pd.DataFrame:
+    """Stimulus × response counts per condition (pooled over participants), long form.
+
+    Returns one row per (``by`` levels, stimulus, response): ``count``,
+    ``n_stimulus`` (trials of that stimulus in the condition) and
+    ``proportion`` = count / n_stimulus (each row of the matrix sums to 1), the
+    form of the confusion tables in seed 000 §4 ("judging the ball as a plane
+    circular": 66.7 %).
+    """
+    by = [by] if isinstance(by, str) else list(by or [])
+    df = _scored(trials, stimulus, response, by)
+    labels = _labels(df, stimulus, response, labels)
+    rows = []
+    for key, g in _groups(df, by):
+        m = confusion_counts(g[stimulus].astype(str).to_numpy(),
+                             g[response].astype(str).to_numpy(), labels)
+        n_stim = m.sum(axis=1)
+        for i, s in enumerate(labels):
+            for j, r in enumerate(labels):
+                rows.append({**dict(zip(by, key)), "stimulus": s, "response": r,
+                             "count": int(m[i, j]), "n_stimulus": int(n_stim[i]),
+                             "proportion": m[i, j] / n_stim[i] if n_stim[i] else np.nan})
+    out = pd.DataFrame(rows, columns=[*by, "stimulus", "response", "count", "n_stimulus",
+                                      "proportion"])
+    out["stimulus"] = pd.Categorical(out["stimulus"], categories=labels)
+    out["response"] = pd.Categorical(out["response"], categories=labels)
+    return out
+
+
+def _it(m: np.ndarray) -> tuple[float, float, float]:
+    """Maximum-likelihood transmitted information (bits), H(stimulus), H(response)."""
+    n = m.sum()
+    p = m / n
+    ps, pr = p.sum(axis=1), p.sum(axis=0)
+    nz = p > 0
+    it = float((p[nz] * np.log2(p[nz] / np.outer(ps, pr)[nz])).sum())
+    hs = float(-(ps[ps > 0] * np.log2(ps[ps > 0])).sum())
+    hr = float(-(pr[pr > 0] * np.log2(pr[pr > 0])).sum())
+    return max(it, 0.0), hs, hr
+
+
+def _kappa(m: np.ndarray) -> tuple[float, float]:
+    """Cohen's (1960) kappa and its large-sample standard error (Fleiss, Cohen & Everitt 1969)."""
+    n = m.sum()
+    p = m / n
+    po = np.trace(p)
+    r, c = p.sum(axis=1), p.sum(axis=0)
+    pe = float(r @ c)
+    if pe == 1:
+        return np.nan, np.nan
+    k = (po - pe) / (1 - pe)
+    # Fleiss, Cohen & Everitt (1969), as statsmodels' cohens_kappa computes it
+    term1 = sum(p[i, i] * (1 - (r[i] + c[i]) * (1 - k)) ** 2 for i in range(len(p)))
+    term2 = (1 - k) ** 2 * sum(p[i, j] * (c[i] + r[j]) ** 2
+                               for i in range(len(p)) for j in range(len(p)) if i != j)
+    term3 = (k - pe * (1 - k)) ** 2
+    var = (term1 + term2 - term3) / (n * (1 - pe) ** 2)
+    return float(k), float(np.sqrt(max(var, 0.0)))
+
+
+def information_transfer(trials: pd.DataFrame, by: list[str] | str | None = None, *,
+                         stimulus: str = "correct_answer", response: str = "answer",
+                         labels: list[str] | None = None) -> pd.DataFrame:
+    """Information transmitted from stimulus to response, in bits, per condition.
+
+    ``IT = Σ p(s,r) log2 [p(s,r) / (p(s) p(r))]`` from the pooled confusion
+    matrix (Miller 1955; Tan et al. 1999 for touch), with ``H_stimulus`` its
+    ceiling and ``relative_IT = IT / H_stimulus``. 2^IT is the number of
+    stimuli that could be told apart without error.
+
+    Small-sample bias: this maximum-likelihood estimate is biased upwards. Its
+    first-order bias is ``(k_s − 1)(k_r − 1) / (2 N ln 2)`` bits (Miller 1955),
+    reported as ``bias_bits``, with ``IT_corrected`` = IT − bias (floored at 0).
+    With 4 shapes (k = 4) and the 30 trials of one cell of the demo this is
+    0.22 bits, a tenth of the 2-bit ceiling; Houtsma (1983) asks for N > 5 k²
+    trials (80 for k = 4) before the estimate is trusted. ``n`` is given so the
+    reader can judge.
+    """
+    by = [by] if isinstance(by, str) else list(by or [])
+    df = _scored(trials, stimulus, response, by)
+    labels = _labels(df, stimulus, response, labels)
+    rows = []
+    for key, g in _groups(df, by):
+        m = confusion_counts(g[stimulus].astype(str).to_numpy(),
+                             g[response].astype(str).to_numpy(), labels)
+        n = int(m.sum())
+        it, hs, hr = _it(m)
+        ks = int((m.sum(axis=1) > 0).sum())
+        kr = int((m.sum(axis=0) > 0).sum())
+        bias = (ks - 1) * (kr - 1) / (2 * n * np.log(2)) if n else np.nan
+        rows.append({**dict(zip(by, key)), "n": n, "k_stimuli": ks, "k_responses": kr,
+                     "H_stimulus": hs, "H_response": hr, "IT_bits": it,
+                     "relative_IT": it / hs if hs > 0 else np.nan, "bias_bits": bias,
+                     "IT_corrected": max(it - bias, 0.0),
+                     "n_recommended": 5 * len(labels) ** 2})
+    return pd.DataFrame(rows)
+
+
+def agreement(trials: pd.DataFrame, by: list[str] | str | None = None, *,
+              stimulus: str = "correct_answer", response: str = "answer",
+              labels: list[str] | None = None) -> pd.DataFrame:
+    """Accuracy and Cohen's kappa between stimulus and response, per condition.
+
+    Kappa (Cohen 1960) is the accuracy above what the response frequencies
+    would give by chance: ``(p_o − p_e) / (1 − p_e)``, with its large-sample
+    standard error (Fleiss, Cohen & Everitt 1969) and a 95 % Wald interval.
+    The values equal ``statsmodels.stats.inter_rater.cohens_kappa`` on the
+    same table (tested).
+    """
+    by = [by] if isinstance(by, str) else list(by or [])
+    df = _scored(trials, stimulus, response, by)
+    labels = _labels(df, stimulus, response, labels)
+    rows = []
+    for key, g in _groups(df, by):
+        m = confusion_counts(g[stimulus].astype(str).to_numpy(),
+                             g[response].astype(str).to_numpy(), labels)
+        k, se = _kappa(m)
+        rows.append({**dict(zip(by, key)), "n": int(m.sum()),
+                     "accuracy": np.trace(m) / m.sum(), "kappa": k, "kappa_se": se,
+                     "kappa_ci_low": k - 1.959963984540054 * se,
+                     "kappa_ci_high": k + 1.959963984540054 * se})
+    return pd.DataFrame(rows)
