@@ -1,4 +1,20 @@
-"""Finding, verifying and reading session folders into one tidy trial table."""
+"""Finding, verifying and reading session folders into one tidy trial table.
+
+What is tolerated and what is refused (decided for issue 6):
+
+- a **checksum mismatch** (a file changed after the session ended) is reported
+  prominently: a warning on stderr, ``SessionData.checksum = "MISMATCH"``, a
+  red box at the top of the report; the data are still analysed, because the
+  analyst may have a reason (e.g. an anonymised copy), unless
+  ``load_sessions(strict=True)`` (``vtexp analyze --strict``) refuses them;
+- a **last row cut off mid-write** (no final newline) is dropped and reported;
+- a session that **did not close** (``running``: killed, crashed) or ended
+  **aborted/failed** keeps every trial it logged, and is reported; its files
+  have no checksums to verify (``checksum = "not recorded"``);
+- a file or folder that is **not a vtexp log** is refused with a message
+  saying what was expected (a folder holding ``session.json`` of format
+  ``vtexp-session`` and a trial log with ``trial`` and ``answer`` columns).
+"""
 
 from __future__ import annotations
 
@@ -19,6 +35,12 @@ class SessionData:
     meta: dict
     trials: pd.DataFrame
     warnings: list[str] = field(default_factory=list)
+    checksum: str = "verified"          # verified | MISMATCH | not recorded | file missing
+    mismatched: list[str] = field(default_factory=list)
+
+    @property
+    def status(self) -> str:
+        return str(self.meta.get("status"))
 
     @property
     def factors(self) -> list[str]:
@@ -38,6 +60,10 @@ def find_sessions(paths: list[Path | str]) -> list[Path]:
         if not p.exists():
             raise InputError("no such file or folder", path=str(p))
         if p.is_file():
+            if p.name.endswith(("_beh.tsv", "_events.tsv", "_beh.json")):
+                raise InputError("this is one file of a session; give the session folder "
+                                 f"({p.parent}) so that it can be checked against "
+                                 "session.json", path=str(p))
             if p.name != "session.json":
                 raise InputError("not a vtexp session folder (expected a folder holding "
                                  "session.json)", path=str(p))
@@ -74,15 +100,27 @@ def read_session(d: Path | str) -> SessionData:
     elif status != "completed":
         warnings.append(f"{d}: session {status}"
                         + (f" ({meta['reason']})" if meta.get("reason") else ""))
-    beh = d / meta["files"]["beh"]
+    try:
+        beh = d / meta["files"]["beh"]
+        for key in ("experiment", "participant", "session"):
+            meta[key]
+    except (KeyError, TypeError) as e:
+        raise InputError(f"session.json lacks {e} (written by another program or "
+                         "edited by hand?)", path=str(meta_path)) from None
     if not beh.is_file():
         raise InputError("the trial log named in session.json is missing", path=str(beh))
-    for name, digest in (meta.get("checksums") or {}).items():
+    checksums = meta.get("checksums") or {}
+    checksum = "verified" if checksums else "not recorded"
+    mismatched: list[str] = []
+    for name, digest in checksums.items():
         f = d / name
         if not f.is_file():
             warnings.append(f"{f}: listed in session.json but missing")
+            checksum = "file missing" if checksum == "verified" else checksum
         elif sha256_file(f) != digest:
             warnings.append(f"{f}: changed since the session ended (checksum differs)")
+            mismatched.append(str(f))
+            checksum = "MISMATCH"
     text = beh.read_bytes().decode("utf-8", errors="replace")
     if text and not text.endswith("\n"):
         cut = text.rfind("\n") + 1
@@ -102,17 +140,26 @@ def read_session(d: Path | str) -> SessionData:
     df.insert(0, "session", int(meta["session"]))
     df.insert(0, "participant", str(meta["participant"]))
     df.insert(0, "experiment", str(meta["experiment"]))
-    return SessionData(d, meta, df, warnings)
+    return SessionData(d, meta, df, warnings, checksum, mismatched)
 
 
-def load_sessions(paths: list[Path | str], *, include_practice: bool = False
-                  ) -> tuple[pd.DataFrame, list[SessionData]]:
-    """Tidy trial table (one row per trial) of every session found under ``paths``."""
+def load_sessions(paths: list[Path | str], *, include_practice: bool = False,
+                  strict: bool = False) -> tuple[pd.DataFrame, list[SessionData]]:
+    """Tidy trial table (one row per trial) of every session found under ``paths``.
+
+    Practice trials are left out unless ``include_practice``; replays and
+    reaction times are kept. With ``strict``, a file whose checksum differs
+    from the one in its ``session.json`` is an error instead of a warning.
+    """
     dirs = find_sessions(paths)
     if not dirs:
         raise InputError("no vtexp sessions found (no session.json below "
                          + ", ".join(map(str, paths)) + ")")
     sessions = [read_session(d) for d in dirs]
+    bad = [f for s in sessions for f in s.mismatched]
+    if strict and bad:
+        raise InputError("checksum mismatch: " + ", ".join(bad) + " changed since the session "
+                         "ended (refused because of --strict)")
     df = pd.concat([s.trials for s in sessions], ignore_index=True)
     # Factor columns keep the declared order of their levels (tables read like the paper).
     order: dict[str, list[str]] = {}

@@ -1,0 +1,182 @@
+"""The ``analysis:`` section of an experiment file: the questions its paper asked.
+
+Each study declares the analyses of its report, so that ``vtexp analyze``
+answers the questions the study's paper asked (seed 001 §4.1: a two-way
+repeated-measures ANOVA of shape × timing on the recognition rate, Table 1,
+confusions). Everything is optional; an experiment without the section gets
+the default analysis (:func:`default_spec`). Unknown keys are errors, and
+factor names are checked against the experiment's factors when the file is
+loaded.
+
+Measures (``dv``), one value per participant and cell, averaged over trials:
+``rate`` (share of correct answers among scored trials), ``rt_s`` (reaction
+time), ``replays`` (times the stimulus was felt again) and ``answer`` (the
+answer read as a number, for rating scales).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import Field, ValidationInfo, model_validator
+from typing_extensions import Self
+
+from ..model import Model
+
+Measure = Literal["rate", "rt_s", "replays", "answer"]
+
+
+class AnovaSpec(Model):
+    """A repeated-measures ANOVA of a measure on within-participant factors."""
+
+    dv: Measure = "rate"
+    within: list[str] | None = Field(None, description="factors (default: all of them)")
+    correction: Literal["auto", "none", "GG", "HF"] = Field(
+        "auto", description="which p the report's sentences give; auto = Greenhouse–Geisser "
+                            "when Mauchly's test rejects sphericity (p < .05)")
+    note: str = Field("", description="what the paper reported, shown beside the result")
+
+
+class SimpleEffectsSpec(Model):
+    """Simple effects of ``effect`` at each level of ``by`` (seed 000 Table 3)."""
+
+    effect: str
+    by: str
+    dv: Measure = "rate"
+    within: list[str] | None = None
+    method: Literal["separate", "pooled", "both"] = "both"
+
+
+class PosthocSpec(Model):
+    """Paired comparisons between the levels of ``factor`` (within each level of ``by``)."""
+
+    factor: str
+    by: str | None = None
+    dv: Measure = "rate"
+    within: list[str] | None = None
+    padjust: Literal["holm", "bonferroni"] = "holm"
+
+
+class TableSpec(Model):
+    """Rate by two factors in the paper's layout (seed 001 Table 1: rows timing, columns shape)."""
+
+    rows: str
+    columns: str
+    pooled: bool = Field(True, description="pool trials over participants (the paper's "
+                                           "percentages) or average participants' rates")
+
+
+class ConfusionSpec(Model):
+    """Confusion matrices, information transfer and kappa per level (combination) of ``by``."""
+
+    by: list[str] = Field(default_factory=list)
+
+
+class OrdinalSpec(Model):
+    """Friedman's test and Wilcoxon signed-rank comparisons on a rating."""
+
+    factor: str
+    dv: Measure = "answer"
+    padjust: Literal["holm", "bonferroni"] = "holm"
+
+
+class MixedModelSpec(Model):
+    """Mixed logistic regression of correct on the factors, random intercept per participant."""
+
+    factors: list[str] | None = None
+    interactions: bool = False
+
+
+class FigureSpec(Model):
+    """Rate per condition (x axis ``x``, one line per level of ``trace``)."""
+
+    x: str
+    trace: str | None = None
+    dv: Measure = "rate"
+
+
+class AnalysisSpec(Model):
+    """The analyses of an experiment's report."""
+
+    anova: list[AnovaSpec] = Field(default_factory=list)
+    simple_effects: list[SimpleEffectsSpec] = Field(default_factory=list)
+    posthoc: list[PosthocSpec] = Field(default_factory=list)
+    table: TableSpec | None = None
+    confusion: ConfusionSpec | None = None
+    ordinal: list[OrdinalSpec] = Field(default_factory=list)
+    mixed_model: MixedModelSpec | None = None
+    figure: FigureSpec | None = None
+
+    @model_validator(mode="after")
+    def _distinct(self) -> Self:
+        for i, s in enumerate(self.simple_effects):
+            if s.effect == s.by:
+                raise ValueError(f"simple_effects[{i}]: effect and by are both {s.effect!r}")
+        for i, p in enumerate(self.posthoc):
+            if p.by == p.factor:
+                raise ValueError(f"posthoc[{i}]: factor and by are both {p.factor!r}")
+        if self.table and self.table.rows == self.table.columns:
+            raise ValueError("table: rows and columns are the same factor")
+        return self
+
+    def references(self) -> list[tuple[str, str]]:
+        """(where, factor name) for every factor the analyses name."""
+        refs: list[tuple[str, str]] = []
+        for i, a in enumerate(self.anova):
+            refs += [(f"anova[{i}].within", f) for f in a.within or []]
+        for i, s in enumerate(self.simple_effects):
+            refs += [(f"simple_effects[{i}].effect", s.effect), (f"simple_effects[{i}].by", s.by)]
+            refs += [(f"simple_effects[{i}].within", f) for f in s.within or []]
+        for i, p in enumerate(self.posthoc):
+            refs += [(f"posthoc[{i}].factor", p.factor)]
+            refs += [(f"posthoc[{i}].by", p.by)] if p.by else []
+            refs += [(f"posthoc[{i}].within", f) for f in p.within or []]
+        if self.table:
+            refs += [("table.rows", self.table.rows), ("table.columns", self.table.columns)]
+        if self.confusion:
+            refs += [("confusion.by", f) for f in self.confusion.by]
+        refs += [(f"ordinal[{i}].factor", o.factor) for i, o in enumerate(self.ordinal)]
+        if self.mixed_model:
+            refs += [("mixed_model.factors", f) for f in self.mixed_model.factors or []]
+        if self.figure:
+            refs += [("figure.x", self.figure.x)]
+            refs += [("figure.trace", self.figure.trace)] if self.figure.trace else []
+        return refs
+
+    def unknown_factors(self, factors: list[str]) -> list[str]:
+        """Messages for every factor name that is not one of ``factors``."""
+        return [f"analysis.{where}: {name!r} is not a factor of this experiment (factors: "
+                f"{', '.join(factors)})" for where, name in self.references()
+                if name not in factors]
+
+
+def check_factor_references(spec: AnalysisSpec | None, info: ValidationInfo) -> Any:
+    """Pydantic after-validator for ``Experiment.analysis``: names must be factors."""
+    factors = (info.data or {}).get("factors")
+    if spec is not None and factors:
+        problems = spec.unknown_factors(list(factors))
+        if problems:
+            raise ValueError(problems[0])
+    return spec
+
+
+def default_spec(factors: list[str], stimulus_factor: str | None, scored: bool) -> AnalysisSpec:
+    """What an experiment without an ``analysis:`` section gets.
+
+    With scored answers: an ANOVA of the rate on every factor, the rate figure
+    (x: the first factor that is not the stimulus, lines: the stimulus), the
+    rate table (rows: that factor, columns: the stimulus), confusion matrices
+    per level of the other factors, and the mixed logistic model. Without
+    scored answers: only what needs no scoring (none of the above).
+    """
+    if not scored:
+        return AnalysisSpec()
+    others = [f for f in factors if f != stimulus_factor]
+    x = others[0] if others else factors[0]
+    trace = stimulus_factor if stimulus_factor and stimulus_factor != x else None
+    return AnalysisSpec(
+        anova=[AnovaSpec(within=list(factors))],
+        table=TableSpec(rows=x, columns=trace) if trace else None,
+        confusion=ConfusionSpec(by=others if stimulus_factor else []),
+        mixed_model=MixedModelSpec(factors=list(factors)),
+        figure=FigureSpec(x=x, trace=trace))
