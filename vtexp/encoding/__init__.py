@@ -7,9 +7,12 @@ function and the pydantic model of its parameters (what YAML may declare).
 from __future__ import annotations
 
 from .edge_trace import EdgeTraceParams, edge_trace, follow_contour
+from .height_contours import HeightContourParams, height_contours
 
 PIPELINES = {
     "edge-trace": (edge_trace, EdgeTraceParams),
+    "height-contours": (height_contours, HeightContourParams),
 }
 
-__all__ = ["PIPELINES", "edge_trace", "follow_contour", "EdgeTraceParams"]
+__all__ = ["PIPELINES", "EdgeTraceParams", "HeightContourParams", "edge_trace", "follow_contour",
+           "height_contours"]

@@ -16,9 +16,11 @@ import numpy as np
 from .._cv2 import cv2
 from ..errors import InputError
 from .shapes import SHAPES, ShapeParams, render_shape
+from .surfaces import SURFACES, SurfaceParams, render_surface
 
 GENERATORS = {
     "shape": (render_shape, ShapeParams),
+    "surface": (render_surface, SurfaceParams),
 }
 
 
@@ -42,4 +44,5 @@ def read_image(path: str | Path) -> np.ndarray:
     return img
 
 
-__all__ = ["GENERATORS", "SHAPES", "ShapeParams", "read_image", "render_shape"]
+__all__ = ["GENERATORS", "SHAPES", "SURFACES", "ShapeParams", "SurfaceParams", "read_image",
+           "render_shape", "render_surface"]
