@@ -8,10 +8,13 @@ parameters (what an experiment's YAML may declare).
 
 from __future__ import annotations
 
+from .contours import ContourModeParams, contour_modes
 from .trace import SequentialTraceParams, sequential_trace
 
 CODINGS = {
     "sequential-trace": (sequential_trace, SequentialTraceParams),
+    "contour-modes": (contour_modes, ContourModeParams),
 }
 
-__all__ = ["CODINGS", "sequential_trace", "SequentialTraceParams"]
+__all__ = ["CODINGS", "ContourModeParams", "SequentialTraceParams", "contour_modes",
+           "sequential_trace"]
