@@ -331,6 +331,9 @@ def map_to_array(s: np.ndarray, n_lines: int, rows: int, cols: int, *,
     """
     m, n = s.shape
     lr, lc = lattice_shape(m, n, rows, cols)
+    out = np.zeros((rows, cols), np.int16)
+    if n_lines <= 0:
+        return out
     r_edges = np.linspace(0, m, lr + 1).round().astype(int)
     c_edges = np.linspace(0, n, lc + 1).round().astype(int)
     area = np.outer(np.diff(r_edges), np.diff(c_edges)).astype(np.float64)
@@ -345,7 +348,6 @@ def map_to_array(s: np.ndarray, n_lines: int, rows: int, cols: int, *,
     best = counts[1:].argmax(axis=0) + 1
     share = counts[1:].max(axis=0) / np.maximum(area, 1)
     lattice = np.where((counts[1:].max(axis=0) > 0) & (share > proportion), best, 0)
-    out = np.zeros((rows, cols), np.int16)
     r0, c0 = ((rows - lr) // 2, (cols - lc) // 2) if align == "center" else (0, 0)
     out[r0:r0 + lr, c0:c0 + lc] = lattice
     return out
