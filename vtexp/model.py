@@ -41,18 +41,35 @@ class Model(BaseModel):
 
 # --------------------------------------------------------------------------- device profile
 
+class Orientation(Model):
+    """Where row 0 and column 0 are on the body, both stated (seed 001 writes W = 6,
+    H = 8 while its camera image is landscape: orientation is not to be guessed)."""
+
+    row_0: Annotated[str, Field(min_length=1)] = Field(
+        description="where the first row is, e.g. 'uppermost' or 'farthest from the "
+                    "participant'")
+    col_0: Annotated[str, Field(min_length=1)] = Field(
+        description="where the first column is, e.g. \"at the participant's left\"")
+    source: str = Field("", description="where this comes from (paper, section)")
+
+
 class Geometry(Model):
+    """Actuators in ``rows`` x ``cols``; on the wire, actuator ``row * cols + col``."""
+
     rows: Annotated[int, Field(ge=1, le=256)]
     cols: Annotated[int, Field(ge=1, le=256)]
     pitch_mm: Annotated[float, Field(gt=0)] = Field(description="centre-to-centre distance")
-    body_site: str = Field(description="where the array touches the body")
-    orientation: str = Field(
-        description="how rows/cols map onto the body, e.g. 'row 0 at the top, col 0 at "
-                    "the participant's left'")
+    body_site: Annotated[str, Field(min_length=1)] = Field(
+        description="where the array touches the body")
+    orientation: Orientation
 
     @property
     def n_actuators(self) -> int:
         return self.rows * self.cols
+
+    def index(self, row: int, col: int) -> int:
+        """The actuator's number on the wire (row-major), ``docs/protocol.md``."""
+        return row * self.cols + col
 
 
 class IntensityLevel(Model):

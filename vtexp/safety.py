@@ -3,11 +3,17 @@
 Every device backend calls :func:`check_schedule` before anything reaches an
 actuator (``vtexp.devices.base.DeviceBase.play``). A refusal names the
 actuator, the time and the limit.
+
+Limits that span two plays (an SMA wire must cool for ``min_off_ms`` after
+one play before the next drives it again, seed 002 §3.3) are computed here
+too, by :func:`cooling_wait_ms`; ``DeviceBase.play`` waits that long before
+it starts, rather than refusing a replay the participant asked for.
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
+from typing import Mapping
 
 from .errors import UnsafeStimulus
 from .model import DeviceProfile, LevelDrive, Pulse, PulseTrainDrive, Schedule
@@ -103,3 +109,27 @@ def _check_on(p: Pulse, start: float, end: float, max_on_ms: float, name: str) -
     if end - start > max_on_ms:
         raise UnsafeStimulus(f"{_where(p, start)}: on for {end - start:.1f} ms without a "
                              f"pause, above max_on_ms {max_on_ms} ms of {name}")
+
+
+def cooling_wait_ms(schedule: Schedule, profile: DeviceProfile,
+                    last_off_ms: Mapping[tuple[int, int], float], now_ms: float) -> float:
+    """How long to wait before starting ``schedule`` so that no actuator is driven
+    again less than ``min_off_ms`` after an earlier play last switched it off.
+
+    ``last_off_ms`` maps ``(row, col)`` to the time, on the same clock as
+    ``now_ms``, at which an earlier play left that actuator off. Within one
+    schedule the pause is :func:`check_schedule`'s business.
+    """
+    rest = profile.limits.min_off_ms
+    if rest <= 0 or not last_off_ms:
+        return 0.0
+    first: dict[tuple[int, int], float] = {}
+    for p in schedule.pulses:
+        key = (p.row, p.col)
+        first[key] = min(first.get(key, p.onset_ms), p.onset_ms)
+    wait = 0.0
+    for key, onset in first.items():
+        off = last_off_ms.get(key)
+        if off is not None:
+            wait = max(wait, rest - (now_ms - off) - onset)
+    return wait

@@ -1,29 +1,70 @@
 """Device backends behind one protocol (:class:`vtexp.devices.base.Device`).
 
-``open_device("sim", profile)`` is the embedded default. Further backends
-(serial, emulator) register here under their names.
+Specs for :func:`open_device` (and ``--device`` on the command line):
+
+- ``sim`` (the embedded default), ``sim:realtime``: in-process, virtual clock;
+- ``serial:PORT``: a device speaking wire protocol v1 (``docs/protocol.md``)
+  on any port pyserial opens: ``serial:/dev/ttyACM0``, ``serial:COM3``,
+  ``serial:/dev/pts/4``, ``serial:socket://host:7000``;
+- ``emulator``: the same serial backend talking to an emulated device that
+  it starts on a pseudo-terminal (byte-exact, no hardware).
+
+Backends are imported when first used, so importing this package (and the
+command line) stays fast.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from ..errors import InputError
-from ..model import DeviceProfile
-from .base import Device, DeviceBase
-from .sim import SimDevice
 
-BACKENDS = ("sim",)
+if TYPE_CHECKING:
+    from ..model import DeviceProfile
+    from .base import Device, DeviceBase
+    from .sim import SimDevice
+
+BACKENDS = ("sim", "serial", "emulator")
 
 
-def open_device(spec: str, profile: DeviceProfile, **options) -> DeviceBase:
-    """Create (not yet open) the device named by ``spec``: ``sim`` or ``sim:realtime``."""
+def open_device(spec: str, profile: DeviceProfile, **options: Any) -> DeviceBase:
+    """Create (not yet open) the device named by ``spec`` (see the module docstring)."""
     kind, _, arg = spec.partition(":")
     if kind == "sim":
         if arg not in ("", "realtime"):
             raise InputError(f"unknown sim option {arg!r}; use 'sim' or 'sim:realtime'",
                              key="--device")
+        from .sim import SimDevice
         return SimDevice(profile, realtime=(arg == "realtime"), **options)
+    if kind == "serial":
+        if not arg:
+            raise InputError("give the port after 'serial:', e.g. serial:/dev/ttyACM0, "
+                             "serial:COM3 or serial:socket://HOST:PORT ('vtexp device list' "
+                             "shows the ports found)", key="--device")
+        from .serial_device import SerialDevice
+        return SerialDevice(profile, arg, **options)
+    if kind == "emulator":
+        if arg:
+            raise InputError(f"'emulator' takes no option (got {arg!r}); to drive an emulator "
+                             "started with 'vtexp device emulate', use serial:PORT",
+                             key="--device")
+        from .serial_device import EmulatedDevice
+        return EmulatedDevice(profile, **options)
     raise InputError(f"unknown device {spec!r}; available: {', '.join(BACKENDS)}",
                      key="--device")
+
+
+def __getattr__(name: str) -> Any:
+    if name in ("Device", "DeviceBase"):
+        from . import base
+        return getattr(base, name)
+    if name == "SimDevice":
+        from .sim import SimDevice
+        return SimDevice
+    if name in ("SerialDevice", "EmulatedDevice"):
+        from . import serial_device
+        return getattr(serial_device, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = ["Device", "DeviceBase", "SimDevice", "open_device", "BACKENDS"]

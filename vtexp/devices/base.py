@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import time
 from typing import Protocol, runtime_checkable
 
 from ..model import DeviceInfo, DeviceProfile, PlayReport, Schedule
-from ..safety import check_schedule
+from ..safety import check_schedule, cooling_wait_ms
 
 
 @runtime_checkable
@@ -40,8 +41,10 @@ class DeviceBase:
     """Shared behaviour: safety check before play, all-off on close and on errors.
 
     Backends implement ``_open``, ``_play`` and ``_all_off`` (and may extend
-    ``_close``). :meth:`play` is the only way in, so the safety check cannot be
-    skipped.
+    ``_close``; ``_now_ms``/``_rest`` if they keep their own clock). :meth:`play`
+    is the only way in, so the safety check cannot be skipped. Between plays it
+    also waits out the cooling time (``limits.min_off_ms``) of any actuator the
+    previous play used (``safety.cooling_wait_ms``).
     """
 
     backend = "base"
@@ -49,6 +52,7 @@ class DeviceBase:
     def __init__(self, profile: DeviceProfile):
         self.profile = profile
         self._info: DeviceInfo | None = None
+        self._last_off_ms: dict[tuple[int, int], float] = {}
 
     # -- public API -------------------------------------------------------------------------
     def open(self) -> DeviceInfo:
@@ -62,11 +66,26 @@ class DeviceBase:
     def play(self, schedule: Schedule) -> PlayReport:
         check_schedule(schedule, self.profile)
         self.open()
+        rest = cooling_wait_ms(schedule, self.profile, self._last_off_ms, self._now_ms())
+        if rest > 0:
+            self._rest(rest)
         try:
-            return self._play(schedule)
+            report = self._play(schedule)
         except BaseException:
-            self.all_off()
+            try:
+                self.all_off()
+            finally:
+                self._mark_off(schedule)
             raise
+        self._mark_off(schedule)
+        return report
+
+    def _mark_off(self, schedule: Schedule) -> None:
+        # Stamped when play returns, which is no earlier than the last pulse ended:
+        # the cooling measured from here is never shorter than the real one.
+        now = self._now_ms()
+        for p in schedule.pulses:
+            self._last_off_ms[(p.row, p.col)] = now
 
     def all_off(self) -> None:
         if self._info is not None:
@@ -99,3 +118,11 @@ class DeviceBase:
 
     def _close(self) -> None:
         pass
+
+    def _now_ms(self) -> float:
+        """The clock that cooling times are measured on."""
+        return time.monotonic() * 1000.0
+
+    def _rest(self, ms: float) -> None:
+        """Let ``ms`` pass with every actuator off."""
+        time.sleep(ms / 1000.0)

@@ -70,6 +70,12 @@ class SimDevice(DeviceBase):
                 time.sleep(ms / 1000.0)
             self.clock_ms += ms
 
+    def _now_ms(self) -> float:
+        return self.clock_ms
+
+    def _rest(self, ms: float) -> None:
+        self.wait(ms)
+
     def _all_off(self) -> None:
         self.state[:] = 0.0
         self.history.append(SimEvent(self.clock_ms, "all_off"))

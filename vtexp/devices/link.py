@@ -1,0 +1,339 @@
+"""The host end of a wire-protocol-v1 link over any pyserial port.
+
+A :class:`Link` owns the port: a reader thread decodes frames (counting and
+dropping bad ones), hands replies to the one request in flight and events to
+a callback, and watches for silence; a heartbeat thread keeps the device's
+watchdog fed while the host is idle. Requests are stop-and-wait: one frame
+in flight, answered by exactly one reply with the same sequence number,
+re-sent after a timeout or a ``NAK BAD_FRAME``; the device never executes a
+repeated request twice, so a retry cannot actuate twice.
+
+Loss of the device (the port fails, or nothing valid arrives for the
+silence limit, just under one heartbeat period) is latched in
+:attr:`Link.lost`; every waiting or later call raises :class:`DeviceLost`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from ..errors import DeviceError
+from . import wire
+from .wire import Message, Nak, NakReason
+
+# Silence longer than this fraction of the heartbeat period means the device is gone.
+# Heartbeats go out every fifth of the period, so it takes four lost replies in a row;
+# the reader checks at least every twentieth, so loss is noticed within one period.
+SILENCE_FRACTION = 0.8
+HEARTBEAT_FRACTION = 0.2
+CHECK_FRACTION = 0.05
+
+
+class DeviceLost(DeviceError):
+    """Contact with the device was lost (cable pulled, power lost, device hung)."""
+
+
+class DeviceRefused(DeviceError):
+    """The device answered a request with a NAK."""
+
+    def __init__(self, message: str, nak: Nak):
+        super().__init__(message)
+        self.nak = nak
+
+
+@dataclass
+class LinkStats:
+    """What the link has seen: the counts behind "detected, retried, counted"."""
+
+    tx_frames: int = 0
+    tx_bytes: int = 0
+    rx_frames: int = 0
+    rx_bytes: int = 0
+    rx_bad: dict[str, int] = field(default_factory=dict)   # by kind: bad_crc, bad_cobs, ...
+    retries: int = 0            # requests sent again
+    timeouts: int = 0           # ... because no reply came in time
+    bad_frame_naks: int = 0     # ... because the device could not read our frame
+    stale_replies: int = 0      # replies to a request no longer in flight (answered twice)
+    device_frames_lost: int = 0  # gaps in the device's sequence numbers
+    heartbeats: int = 0
+    last_rtt_ms: float | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        d = dict(vars(self))
+        d["rx_bad"] = dict(self.rx_bad)
+        d["rx_bad_total"] = sum(self.rx_bad.values())
+        return d
+
+
+class Link:
+    """Requests, replies and events over an open pyserial port (see module docstring).
+
+    Parameters
+    ----------
+    port:
+        An open ``serial.SerialBase`` (``serial.serial_for_url(...)``) whose
+        ``timeout`` is short (it bounds how often silence is checked).
+    name:
+        The port's name, for messages.
+    reply_timeout_s:
+        How long to wait for a reply before sending again, on top of the
+        time the bytes take on the wire at the port's baud rate.
+    retries:
+        How many times a request is sent again before giving up.
+    on_event:
+        Called in the reader thread with each event message (ONSET, PLAY_DONE, ALARM).
+    trace:
+        Called with ``("to_device" | "to_host", message_or_error)`` for every frame.
+    """
+
+    def __init__(self, port: Any, *, name: str, reply_timeout_s: float = 0.05, retries: int = 8,
+                 on_event: Callable[[Message], None] | None = None,
+                 trace: Callable[[str, object], None] | None = None):
+        self.port = port
+        self.name = name
+        self.reply_timeout_s = reply_timeout_s
+        self.retries = retries
+        self.on_event = on_event
+        self.trace = trace
+        self.stats = LinkStats()
+        self.lost: str | None = None
+        self.lost_at: float | None = None
+        self.next_send_at: float | None = None    # host-streamed play: keep heartbeats clear
+        self.heartbeat_s: float | None = None
+        self._reader = wire.FrameReader()
+        self._cond = threading.Condition()
+        self._tx_lock = threading.Lock()
+        self._req_lock = threading.Lock()
+        self._seq = 0
+        self._pending: int | None = None
+        self._reply: Message | None = None
+        self._resend = False
+        self._dev_seq: int | None = None
+        self.last_rx = time.monotonic()
+        self.last_tx = time.monotonic()
+        self._closing = threading.Event()
+        self._reader_thread: threading.Thread | None = None
+        self._hb_thread: threading.Thread | None = None
+
+    # -- lifecycle --------------------------------------------------------------------------
+    def start(self) -> None:
+        self._reader_thread = threading.Thread(target=self._read_loop, daemon=True,
+                                               name=f"vtexp-link-reader {self.name}")
+        self._reader_thread.start()
+
+    def start_heartbeat(self, period_ms: int) -> None:
+        """Send heartbeats and watch for silence from now on (after the handshake)."""
+        self.heartbeat_s = period_ms / 1000.0
+        self.last_rx = time.monotonic()
+        self._hb_thread = threading.Thread(target=self._heartbeat_loop, daemon=True,
+                                           name=f"vtexp-link-heartbeat {self.name}")
+        self._hb_thread.start()
+
+    def close(self) -> None:
+        self._closing.set()
+        with self._cond:
+            self._cond.notify_all()
+        try:
+            self.port.cancel_read()
+        except Exception:           # not every pyserial port class can
+            pass
+        for t in (self._hb_thread, self._reader_thread):
+            if t is not None and t is not threading.current_thread():
+                t.join(timeout=2)
+        try:
+            self.port.close()
+        except Exception:           # already gone (unplugged): nothing left to release
+            pass
+
+    # -- state ------------------------------------------------------------------------------
+    @property
+    def silence_limit_s(self) -> float | None:
+        return None if self.heartbeat_s is None else SILENCE_FRACTION * self.heartbeat_s
+
+    def check(self) -> None:
+        """Raise :class:`DeviceLost` if the link has been lost."""
+        if self.lost is not None:
+            raise DeviceLost(self.lost)
+
+    def mark_lost(self, reason: str) -> None:
+        with self._cond:
+            if self.lost is None:
+                self.lost = reason
+                self.lost_at = time.monotonic()
+            self._cond.notify_all()
+
+    # -- requests ---------------------------------------------------------------------------
+    def reply_timeout_for(self, n_bytes: int, reply_bytes: int = 64) -> float:
+        baud = getattr(self.port, "baudrate", None) or 115200
+        return self.reply_timeout_s + (n_bytes + reply_bytes) * 10.0 / baud
+
+    def request(self, msg: Message, *, timeout_s: float | None = None,
+                retries: int | None = None, blocking: bool = True,
+                reply_bytes: int = 64) -> Message | None:
+        """Send ``msg`` and return the device's reply (an ACK-like message or a NAK).
+
+        Sent again after ``timeout_s`` without a reply or on ``NAK BAD_FRAME``, up
+        to ``retries`` times; then :class:`DeviceError`. ``blocking=False`` returns
+        None at once if another request is in flight (heartbeats use it).
+        """
+        self.check()
+        if not self._req_lock.acquire(blocking=blocking):
+            return None
+        try:
+            seq = self._seq
+            self._seq = (self._seq + 1) & 0xFF
+            frame = wire.encode(msg, seq)
+            timeout = timeout_s if timeout_s is not None else self.reply_timeout_for(
+                len(frame), reply_bytes)
+            retries = self.retries if retries is None else retries
+            with self._cond:
+                self._pending, self._reply, self._resend = seq, None, False
+            attempt = 0
+            while True:
+                self._write(frame, msg)
+                deadline = time.monotonic() + timeout
+                with self._cond:
+                    while (self._reply is None and not self._resend and self.lost is None
+                           and not self._closing.is_set()):
+                        left = deadline - time.monotonic()
+                        if left <= 0:
+                            break
+                        self._cond.wait(left)
+                    reply, resend = self._reply, self._resend
+                    self._resend = False
+                self.check()
+                if self._closing.is_set():
+                    raise DeviceError(f"the link to {self.name} was closed during a request")
+                if reply is not None:
+                    return reply
+                if attempt >= retries:
+                    raise DeviceError(
+                        f"the device on {self.name} did not answer {type(msg).__name__} "
+                        f"after {attempt + 1} attempts ({timeout * 1000:.0f} ms each)")
+                attempt += 1
+                self.stats.retries += 1
+                if not resend:
+                    self.stats.timeouts += 1
+        finally:
+            with self._cond:
+                self._pending = None
+            self._req_lock.release()
+
+    def ping(self) -> float:
+        """Round-trip time of one HEARTBEAT, in milliseconds."""
+        t = time.perf_counter()
+        self.expect(wire.Heartbeat(), wire.Ack, retries=0)
+        rtt = (time.perf_counter() - t) * 1000.0
+        self.stats.last_rtt_ms = rtt
+        return rtt
+
+    def expect(self, msg: Message, reply_type: type, **kw) -> Any:
+        """:meth:`request`, raising :class:`DeviceRefused` on a NAK or a reply of another type."""
+        reply = self.request(msg, **kw)
+        if isinstance(reply, Nak):
+            raise DeviceRefused(f"the device on {self.name} refused {type(msg).__name__}: "
+                                f"{reply.reason_name} (detail {reply.detail})", reply)
+        if not isinstance(reply, reply_type):
+            raise DeviceError(f"the device on {self.name} answered {type(msg).__name__} with "
+                              f"{type(reply).__name__}, not {reply_type.__name__}: it does not "
+                              f"follow {wire.PROTOCOL_NAME}")
+        return reply
+
+    def _write(self, frame: bytes, msg: Message) -> None:
+        try:
+            with self._tx_lock:
+                self.port.write(frame)
+        except Exception as e:      # SerialException, OSError, or a port closed under us
+            self.mark_lost(f"writing to {self.name} failed ({e})")
+            self.check()
+        self.last_tx = time.monotonic()
+        self.stats.tx_frames += 1
+        self.stats.tx_bytes += len(frame)
+        if self.trace:
+            self.trace("to_device", msg)
+
+    # -- reader -----------------------------------------------------------------------------
+    def _read_loop(self) -> None:
+        while not self._closing.is_set():
+            try:
+                n = self.port.in_waiting
+                data = self.port.read(n if n else 1)
+            except Exception as e:  # SerialException/OSError: unplugged; TypeError: closed
+                if not self._closing.is_set():
+                    self.mark_lost(f"the port {self.name} reported an error ({e})")
+                return
+            if data:
+                self.stats.rx_bytes += len(data)
+                for item in self._reader.feed(data):
+                    self._dispatch(item)
+            limit = self.silence_limit_s
+            if limit is not None and self.lost is None:
+                quiet = time.monotonic() - self.last_rx
+                if quiet > limit:
+                    self.mark_lost(f"nothing valid came back from the device on {self.name} "
+                                   f"for {quiet * 1000:.0f} ms (heartbeat period "
+                                   f"{self.heartbeat_s * 1000:.0f} ms)")
+                    return
+
+    def _dispatch(self, item: tuple[int, Message] | wire.WireError) -> None:
+        if isinstance(item, wire.WireError):
+            self.stats.rx_bad[item.kind] = self.stats.rx_bad.get(item.kind, 0) + 1
+            if self.trace:
+                self.trace("to_host", item)
+            return
+        seq, msg = item
+        self.last_rx = time.monotonic()
+        self.stats.rx_frames += 1
+        if self.trace:
+            self.trace("to_host", msg)
+        if self._dev_seq is not None:
+            gap = (seq - self._dev_seq) & 0xFF
+            if 1 < gap < 128:
+                self.stats.device_frames_lost += gap - 1
+            if gap == 0 or gap >= 128:
+                seq = self._dev_seq      # a re-sent older reply: keep the newest seq seen
+        self._dev_seq = seq
+        if msg.REPLY:
+            with self._cond:
+                if isinstance(msg, Nak) and msg.reason == NakReason.BAD_FRAME:
+                    if self._pending is not None:
+                        self.stats.bad_frame_naks += 1
+                        self._resend = True
+                        self._cond.notify_all()
+                elif self._pending is not None and msg.ack_seq == self._pending \
+                        and self._reply is None:
+                    self._reply = msg
+                    self._cond.notify_all()
+                else:
+                    self.stats.stale_replies += 1
+        elif self.on_event is not None:
+            self.on_event(msg)
+
+    # -- heartbeat --------------------------------------------------------------------------
+    def _heartbeat_loop(self) -> None:
+        assert self.heartbeat_s is not None
+        every = HEARTBEAT_FRACTION * self.heartbeat_s
+        while not self._closing.wait(CHECK_FRACTION * self.heartbeat_s):
+            if self.lost is not None:
+                return
+            now = time.monotonic()
+            if now - self.last_tx < every:
+                continue
+            nxt = self.next_send_at
+            if nxt is not None and -0.001 < nxt - time.perf_counter() < 0.005:
+                continue            # a streamed frame is due in a moment; it feeds the watchdog
+            try:
+                t = time.perf_counter()
+                # A lost heartbeat is sent again at once (a few times) so that one bad
+                # frame on a noisy line does not look like a pulled cable.
+                baud = getattr(self.port, "baudrate", None) or 115200
+                wait = max(every / 4, 3 * 32 * 10.0 / baud)   # 32 bytes: both frames
+                if self.request(wire.Heartbeat(), retries=3, blocking=False,
+                                timeout_s=wait) is not None:
+                    self.stats.heartbeats += 1
+                    self.stats.last_rtt_ms = (time.perf_counter() - t) * 1000.0
+            except DeviceError:
+                pass                # silence is judged by the reader, not by one heartbeat

@@ -1,0 +1,476 @@
+"""The ``serial`` and ``emulator`` backends: a vtexp array on a serial port.
+
+:class:`SerialDevice` opens any port pyserial opens (``/dev/ttyACM0``,
+``COM3``, a pty path, a URL such as ``socket://host:port``), performs the
+wire-protocol-v1 handshake, refuses a device whose geometry or drive differs
+from the profile, and plays Schedules in one of two ways:
+
+- ``timing="device"`` (default): the schedule is uploaded and triggered; the
+  device plays it from its own clock and reports every onset (the host only
+  triggers, so host jitter does not reach the skin);
+- ``timing="host"``: the host sends a sparse frame at each change time and
+  the device stamps when it applied it (for devices without schedule memory,
+  and to measure what device-side timing buys, ``bench/timing.py``).
+
+Safety is :class:`~vtexp.devices.base.DeviceBase`'s: every Schedule passes
+``vtexp.safety`` before a byte is written, and every error path ends in
+ALL_OFF. When the device is lost, the host raises :class:`DeviceLost` within
+one heartbeat period and the device's own watchdog turns everything off.
+
+:class:`EmulatedDevice` (``emulator``) is a :class:`SerialDevice` talking to
+a :class:`~vtexp.devices.emulator.PtyEmulator` that it starts itself.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal
+
+from ..errors import DeviceError, InputError
+from ..model import (DeviceInfo, DeviceProfile, LevelDrive, PlayedPulse, PlayReport, Pulse,
+                     Schedule)
+from . import wire
+from .base import DeviceBase
+from .link import DeviceLost, DeviceRefused, Link
+from .wire import (Ack, AllOff, DoneReason, GetOnsets, Hello, HelloReply, Level, Message,
+                   NakReason, Onset, OnsetsReply, PlayDone, SetFrame, SetFrameFull, Setting,
+                   Status, StatusReply, Train, Trigger, UploadBegin, UploadChunk, WirePulse)
+
+Timing = Literal["device", "host"]
+ACTUATOR_NAMES = {v: k for k, v in wire.ACTUATOR_KINDS.items()}
+DRIVE_NAMES = {v: k for k, v in wire.DRIVE_KINDS.items()}
+
+
+def setting_of(p: Pulse) -> Setting:
+    """A Schedule pulse's drive in wire units (mV, 0.01 Hz, µs)."""
+    if p.level is not None:
+        return Level(p.level)
+    tr = p.train
+    assert tr is not None
+    return Train(round(tr.amplitude_v * 1000), round(tr.frequency_hz * 100),
+                 round(tr.pulse_width_ms * 1000))
+
+
+def change_groups(pulses: list[Pulse], cols: int, off: Setting
+                  ) -> list[tuple[float, list[tuple[int, Setting]], list[int]]]:
+    """The instants at which outputs change: ``(t_ms, [(index, setting)], [pulses starting])``.
+
+    Offsets come before onsets at the same instant; where pulses of one
+    actuator overlap, the latest started drives it (as the firmware does).
+    """
+    ev = sorted([(p.onset_ms, 1, i) for i, p in enumerate(pulses)]
+                + [(p.offset_ms, 0, i) for i, p in enumerate(pulses)])
+    active: dict[int, list[int]] = {}
+    out: list[tuple[float, list[tuple[int, Setting]], list[int]]] = []
+    k = 0
+    while k < len(ev):
+        t = ev[k][0]
+        changed: dict[int, Setting] = {}
+        starting: list[int] = []
+        while k < len(ev) and ev[k][0] == t:
+            _, on, i = ev[k]
+            k += 1
+            p = pulses[i]
+            idx = p.row * cols + p.col
+            stack = active.setdefault(idx, [])
+            if on:
+                stack.append(i)
+                starting.append(i)
+            else:
+                stack.remove(i)
+            changed[idx] = setting_of(pulses[stack[-1]]) if stack else off
+        out.append((t, sorted(changed.items()), starting))
+    return out
+
+
+def wait_until(t_perf: float, spin_s: float = 0.002) -> None:
+    """Sleep until shortly before ``t_perf`` (``time.perf_counter``), then spin to it."""
+    while True:
+        left = t_perf - time.perf_counter()
+        if left <= 0:
+            return
+        if left > spin_s:
+            time.sleep(left - spin_s)
+        else:
+            time.sleep(0)           # let the reader thread run while we spin
+
+
+@dataclass
+class _PlayState:
+    play_id: int
+    n: int
+    onsets: list[int | None] = field(default_factory=list)
+    done: PlayDone | None = None
+
+
+class SerialDevice(DeviceBase):
+    """A vtexp array on a serial port (see the module docstring).
+
+    Parameters
+    ----------
+    profile:
+        What the array must be; the device's handshake is checked against it.
+    port:
+        Anything ``serial.serial_for_url`` opens.
+    baudrate:
+        Of the UART (ignored by USB CDC devices and ptys, used for timeouts).
+    timing:
+        ``"device"`` (upload and trigger) or ``"host"`` (stream frames).
+    heartbeat_ms:
+        Heartbeat period asked of the device; the device's watchdog and the
+        host's silence limit follow it.
+    watchdog_ms:
+        Device watchdog; defaults to the heartbeat period.
+    """
+
+    backend = "serial"
+
+    def __init__(self, profile: DeviceProfile, port: str, *, baudrate: int = 115200,
+                 timing: Timing = "device", heartbeat_ms: int = 200,
+                 watchdog_ms: int | None = None, reply_timeout_ms: float = 50,
+                 retries: int = 8, handshake_timeout_s: float = 1.0,
+                 trace: Callable[[str, object], None] | None = None):
+        super().__init__(profile)
+        if timing not in ("device", "host"):
+            raise InputError(f"timing must be 'device' or 'host' (got {timing!r})")
+        self.port = port
+        self.baudrate = baudrate
+        self.timing: Timing = timing
+        self.heartbeat_ms = heartbeat_ms
+        self.watchdog_ms = watchdog_ms or heartbeat_ms
+        self.reply_timeout_s = reply_timeout_ms / 1000.0
+        self.retries = retries
+        self.handshake_timeout_s = handshake_timeout_s
+        self.trace = trace
+        self.hello: HelloReply | None = None
+        self._link: Link | None = None
+        self._current: _PlayState | None = None
+        self._play_id = 0
+        self._lost_reported = False
+        self.alarms: list[wire.Alarm] = []
+        self._drive = wire.DRIVE_KINDS[profile.drive.kind]
+        self._off = wire.OFF[self._drive]
+
+    # -- open / close -----------------------------------------------------------------------
+    def _open(self) -> DeviceInfo:
+        import serial   # pyserial; imported here so that 'vtexp --help' stays fast
+
+        self._lost_reported = False
+        try:
+            port = serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=0.01,
+                                         write_timeout=2.0)
+        except (serial.SerialException, ValueError, OSError) as e:
+            raise DeviceError(f"cannot open the serial port {self.port!r}: {e}. "
+                              "'vtexp device list' shows the ports found.") from None
+        try:
+            port.reset_input_buffer()
+        except Exception:
+            pass
+        link = Link(port, name=self.port, reply_timeout_s=self.reply_timeout_s,
+                    retries=self.retries, on_event=self._on_event, trace=self.trace)
+        self._link = link
+        link.start()
+        try:
+            self.hello = hello = self._handshake(link)
+            self._check_against_profile(hello)
+            link.start_heartbeat(hello.heartbeat_ms)
+        except BaseException:
+            link.close()
+            self._link = None
+            raise
+        return DeviceInfo(
+            backend=self.backend, profile=self.profile.name, rows=hello.rows, cols=hello.cols,
+            firmware=hello.firmware, protocol=f"vtexp-wire/{hello.protocol}", port=self.port,
+            details={"device_id": hello.device_id, "heartbeat_ms": hello.heartbeat_ms,
+                     "watchdog_ms": hello.watchdog_ms, "max_pulses": hello.max_pulses,
+                     "max_payload": hello.max_payload, "baudrate": self.baudrate,
+                     "timing": self.timing})
+
+    def _handshake(self, link: Link) -> HelloReply:
+        attempt_s = 0.1
+        tries = max(1, round(self.handshake_timeout_s / attempt_s))
+        try:
+            reply = link.request(Hello(wire.PROTOCOL_VERSION, self.heartbeat_ms,
+                                       self.watchdog_ms),
+                                 timeout_s=attempt_s, retries=tries - 1)
+        except DeviceLost as e:
+            raise DeviceError(f"the port {self.port} failed during the handshake: {e}") from None
+        except DeviceError:
+            raise DeviceError(
+                f"no answer to the vtexp handshake from {self.port} within "
+                f"{self.handshake_timeout_s:g} s. Is a device with {wire.PROTOCOL_NAME} "
+                f"firmware on this port, at {self.baudrate} baud? ('vtexp device list' shows "
+                "the ports; 'vtexp device emulate' starts an emulated one.)") from None
+        if isinstance(reply, wire.Nak):
+            if reply.reason == NakReason.UNSUPPORTED_PROTOCOL:
+                raise DeviceError(f"the device on {self.port} speaks wire protocol up to "
+                                  f"{reply.detail}, not {wire.PROTOCOL_VERSION}; update its "
+                                  "firmware or vtexp")
+            raise DeviceError(f"the device on {self.port} refused the handshake: "
+                              f"{reply.reason_name}")
+        if not isinstance(reply, HelloReply):
+            raise DeviceError(f"the device on {self.port} answered the handshake with "
+                              f"{type(reply).__name__}; it does not speak {wire.PROTOCOL_NAME}")
+        if reply.protocol != wire.PROTOCOL_VERSION:
+            raise DeviceError(f"the device on {self.port} chose wire protocol "
+                              f"{reply.protocol}; this vtexp speaks {wire.PROTOCOL_VERSION}")
+        return reply
+
+    def _check_against_profile(self, h: HelloReply) -> None:
+        """Refuse a device that is not the array the profile describes."""
+        p = self.profile
+        dev_kind = ACTUATOR_NAMES.get(h.actuator, f"actuator kind {h.actuator}")
+        dev_drive = DRIVE_NAMES.get(h.drive, f"drive kind {h.drive}")
+        if (h.rows, h.cols, dev_kind, dev_drive) != (p.rows, p.cols, p.actuator, p.drive.kind):
+            raise DeviceError(
+                f"the device on {self.port} ({h.firmware}, id {h.device_id!r}) reports a "
+                f"{h.rows}x{h.cols} array of {dev_kind} driven by {dev_drive}, but profile "
+                f"{p.name!r} describes a {p.rows}x{p.cols} array of {p.actuator} driven by "
+                f"{p.drive.kind}. Nothing was played. Choose the profile of the device "
+                "that is connected (--profile), or connect the right device.")
+        lim = p.limits
+        if isinstance(p.drive, LevelDrive):
+            if (lim.max_level or 0) > h.max_level:
+                raise DeviceError(f"profile {p.name!r} allows level {lim.max_level}, but the "
+                                  f"device on {self.port} has levels up to {h.max_level} only")
+        else:
+            checks = [("amplitude", lim.max_amplitude_v or p.drive.amplitude_v, 1000,
+                       h.max_amplitude_mv, "V"),
+                      ("frequency", lim.max_frequency_hz or max(p.drive.frequencies_hz), 100,
+                       h.max_frequency_chz, "Hz"),
+                      ("pulse width", lim.max_pulse_width_ms or max(p.drive.pulse_width_ms),
+                       1000, h.max_width_us, "ms")]
+            for what, want, scale, has, unit in checks:
+                if round(want * scale) > has:
+                    raise DeviceError(f"profile {p.name!r} allows a {what} of {want:g} {unit}, "
+                                      f"but the device on {self.port} goes up to "
+                                      f"{has / scale:g} {unit} only")
+
+    def _close(self) -> None:
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+
+    # -- loss -------------------------------------------------------------------------------
+    def _lost(self, reason: str) -> DeviceLost:
+        self._lost_reported = True
+        wd = self.hello.watchdog_ms if self.hello else self.watchdog_ms
+        return DeviceLost(
+            f"lost contact with the tactile device on {self.port}: {reason}. The cable may "
+            f"have been pulled or the device lost power. The device turns every actuator off "
+            f"by itself after {wd} ms without hearing from this computer. Reconnect it, check "
+            f"it with 'vtexp device check', then resume the session.")
+
+    def _call(self, fn: Callable[[Link], Any]) -> Any:
+        """Run ``fn(link)``, turning a lost link into a message for people."""
+        link = self._link
+        if link is None:
+            raise DeviceError(f"the device on {self.port} is not open")
+        try:
+            return fn(link)
+        except DeviceLost:
+            raise self._lost(link.lost or "the link was lost") from None
+
+    # -- events (reader thread) -------------------------------------------------------------
+    def _on_event(self, msg: Message) -> None:
+        link = self._link
+        st = self._current
+        if isinstance(msg, Onset) and st is not None and msg.play_id == st.play_id:
+            for i in range(msg.first, min(msg.first + msg.count, st.n)):
+                st.onsets[i] = msg.t_us
+        elif isinstance(msg, PlayDone) and st is not None and msg.play_id == st.play_id:
+            st.done = msg
+        elif isinstance(msg, wire.Alarm):
+            self.alarms.append(msg)
+        if link is not None:
+            with link._cond:
+                link._cond.notify_all()
+
+    # -- play -------------------------------------------------------------------------------
+    def _play(self, schedule: Schedule) -> PlayReport:
+        pulses = schedule.sorted()
+        if self.timing == "host":
+            return self._call(lambda link: self._play_host(link, schedule, pulses))
+        return self._call(lambda link: self._play_device(link, schedule, pulses))
+
+    def _wire_pulses(self, pulses: list[Pulse]) -> list[WirePulse]:
+        c = self.profile.cols
+        return [WirePulse(p.row * c + p.col, round(p.onset_ms * 1000),
+                          max(1, round(p.duration_ms * 1000)), setting_of(p)) for p in pulses]
+
+    def _play_device(self, link: Link, schedule: Schedule, pulses: list[Pulse]) -> PlayReport:
+        assert self.hello is not None
+        wp = self._wire_pulses(pulses)
+        if len(wp) > self.hello.max_pulses:
+            raise DeviceError(f"the schedule has {len(wp)} pulses; the device on {self.port} "
+                              f"holds at most {self.hello.max_pulses}. Use timing='host' or "
+                              "a shorter schedule.")
+        self._play_id = (self._play_id + 1) & 0xFFFF
+        pid = self._play_id
+        link.expect(UploadBegin(pid, len(wp), self._drive), Ack)
+        per = max(1, (self.hello.max_payload - 5) // UploadChunk.pulse_size(self._drive))
+        for k in range(0, len(wp), per):
+            link.expect(UploadChunk(pid, k, self._drive, tuple(wp[k:k + per])), Ack)
+        st = _PlayState(pid, len(wp), [None] * len(wp))
+        self._current = st
+        start_us = link.expect(Trigger(pid, 0), Ack).t_us
+        self._wait_done(link, st, schedule.duration_ms)
+        if st.done is not None and st.done.reason != DoneReason.FINISHED:
+            raise DeviceError(f"the device on {self.port} stopped the play early "
+                              f"({DoneReason.NAMES.get(st.done.reason, st.done.reason)}) "
+                              f"after {st.done.n_onsets} of {len(wp)} onsets")
+        self._fetch_missing(link, st)
+        self._current = None
+        report = [PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
+                              onset_ms=(t - start_us) / 1000.0, duration_ms=p.duration_ms,
+                              level=p.level, train=p.train)
+                  for p, t in zip(pulses, st.onsets)]
+        return PlayReport(device=self.profile.name, started_at_ms=start_us / 1000.0,
+                          duration_ms=schedule.duration_ms, pulses=report)
+
+    def _wait_done(self, link: Link, st: _PlayState, duration_ms: float) -> None:
+        """Wait for PLAY_DONE; if that event was lost, ask for the status instead."""
+        hb = link.heartbeat_s or 0.2
+        deadline = time.monotonic() + duration_ms / 1000.0 + max(0.1, hb)
+        while True:
+            with link._cond:
+                while st.done is None and link.lost is None:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        break
+                    link._cond.wait(min(left, hb / 4))
+            link.check()
+            if st.done is not None:
+                return
+            status = link.expect(Status(), StatusReply)
+            if status.state in (wire.DeviceState.PLAYING, wire.DeviceState.ARMED) \
+                    and status.play_id == st.play_id:
+                deadline = time.monotonic() + hb       # still going (device clock slower?)
+                continue
+            if status.state == wire.DeviceState.NO_SESSION:
+                raise DeviceError(f"the device on {self.port} ended the session during the "
+                                  "play (its watchdog fired): every actuator is off")
+            return                      # finished; the PLAY_DONE event was lost on the line
+
+    def _fetch_missing(self, link: Link, st: _PlayState) -> None:
+        """Ask again for onsets whose ONSET events were lost (counted, never guessed)."""
+        assert self.hello is not None
+        fit = (self.hello.max_payload - 5) // 8
+        while (missing := [i for i, t in enumerate(st.onsets) if t is None]):
+            first = missing[0]
+            rep = link.expect(GetOnsets(st.play_id, first, fit), OnsetsReply,
+                              reply_bytes=8 * fit + 16)
+            for k, t in enumerate(rep.times_us):
+                if st.onsets[first + k] is None:
+                    if t == wire.NOT_PLAYED:
+                        raise DeviceError(f"the device on {self.port} did not play pulse "
+                                          f"{first + k} of the schedule")
+                    st.onsets[first + k] = t
+            if not rep.times_us:
+                raise DeviceError(f"the device on {self.port} has no onset for pulse {first}")
+
+    def _frames(self, state: list[Setting], changes: list[tuple[int, Setting]]
+                ) -> list[Message]:
+        """The smallest frame(s) that apply ``changes``: sparse, or dense if shorter."""
+        assert self.hello is not None
+        size = wire.SETTINGS[self._drive].SIZE
+        room = self.hello.max_payload - 3
+        sparse = len(changes) * (2 + size)
+        dense = len(state) * size
+        if dense < sparse and dense + 1 <= self.hello.max_payload:
+            new = list(state)
+            for i, s in changes:
+                new[i] = s
+            return [SetFrameFull(self._drive, tuple(new))]
+        per = max(1, room // (2 + size))
+        return [SetFrame(self._drive, tuple(changes[k:k + per]))
+                for k in range(0, len(changes), per)]
+
+    def _play_host(self, link: Link, schedule: Schedule, pulses: list[Pulse]) -> PlayReport:
+        groups = change_groups(pulses, self.profile.cols, self._off)
+        state = [self._off] * (self.profile.rows * self.profile.cols)
+        onsets: list[int | None] = [None] * len(pulses)
+        first_t_us: int | None = None
+        t0 = time.perf_counter() + 0.002
+        try:
+            for t_ms, changes, starting in groups:
+                target = t0 + t_ms / 1000.0
+                link.next_send_at = target
+                wait_until(target)
+                applied = None
+                for msg in self._frames(state, changes):
+                    ack = link.expect(msg, Ack)
+                    applied = ack.t_us if applied is None else applied
+                for i, s in changes:
+                    state[i] = s
+                if first_t_us is None:
+                    first_t_us = applied - round(t_ms * 1000)
+                for i in starting:
+                    onsets[i] = applied
+        finally:
+            link.next_send_at = None
+        start_us = first_t_us or 0
+        report = [PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
+                              onset_ms=(t - start_us) / 1000.0, duration_ms=p.duration_ms,
+                              level=p.level, train=p.train)
+                  for p, t in zip(pulses, onsets)]
+        return PlayReport(device=self.profile.name, started_at_ms=start_us / 1000.0,
+                          duration_ms=schedule.duration_ms, pulses=report)
+
+    # -- all off ----------------------------------------------------------------------------
+    def _all_off(self) -> None:
+        link = self._link
+        self._current = None
+        if link is None:
+            return
+        if link.lost is not None:
+            if self._lost_reported:
+                return      # already said; the device's watchdog has turned everything off
+            raise self._lost(link.lost)
+        self._call(lambda lk: lk.expect(AllOff(), Ack))
+
+    # -- for tools --------------------------------------------------------------------------
+    def ping(self) -> float:
+        """Round-trip time of one heartbeat, ms."""
+        self.open()
+        return self._call(lambda link: link.ping())
+
+    def status(self) -> StatusReply:
+        self.open()
+        return self._call(lambda link: link.expect(Status(), StatusReply))
+
+    def link_stats(self) -> dict[str, Any]:
+        return self._link.stats.as_dict() if self._link is not None else {}
+
+
+class EmulatedDevice(SerialDevice):
+    """``emulator``: a :class:`SerialDevice` on a pty served by a :class:`PtyEmulator`."""
+
+    backend = "emulator"
+
+    def __init__(self, profile: DeviceProfile, *, faults: Any = None, emulator_options:
+                 dict | None = None, **options: Any):
+        super().__init__(profile, "", **options)
+        self.emulator = None
+        self._faults = faults
+        self._emulator_options = emulator_options or {}
+
+    def _open(self) -> DeviceInfo:
+        from .emulator import PtyEmulator
+
+        self.emulator = PtyEmulator.for_profile(self.profile, faults=self._faults,
+                                                **self._emulator_options)
+        self.port = self.emulator.start()
+        try:
+            return super()._open()
+        except BaseException:
+            self.emulator.stop()
+            raise
+
+    def _close(self) -> None:
+        try:
+            super()._close()
+        finally:
+            if self.emulator is not None:
+                self.emulator.stop()
