@@ -14,7 +14,7 @@ import hashlib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, Field, ValidationError, model_validator
+from pydantic import AfterValidator, Field, ValidationError, field_validator, model_validator
 from typing_extensions import Self
 
 from .analysis.spec import AnalysisSpec, check_factor_references
@@ -26,12 +26,24 @@ NAME = r"^[a-z][a-z0-9_]*$"
 LABEL = r"^[A-Za-z0-9][A-Za-z0-9_.\-/ ]*$"
 
 
+def _registered(kind: str, name: str | None, registry: dict) -> str | None:
+    if name is not None and name not in registry:
+        raise ValueError(f"unknown {kind} {name!r}; available: {', '.join(sorted(registry))}")
+    return name
+
+
 class StimulusSpec(Model):
     """A stimulus image: from a generator (``generator`` + ``params``) or a ``file``."""
 
-    generator: Literal["shape"] | None = None
+    generator: str | None = Field(None, description="a name from vtexp.stimuli.GENERATORS")
     file: str | None = Field(None, description="image path, relative to the YAML file")
     params: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("generator")
+    @classmethod
+    def _known(cls, v: str | None) -> str | None:
+        from .stimuli import GENERATORS
+        return _registered("generator", v, GENERATORS)
 
     @model_validator(mode="after")
     def _one_source(self) -> Self:
@@ -43,12 +55,24 @@ class StimulusSpec(Model):
 
 
 class EncodingSpec(Model):
-    pipeline: Literal["edge-trace"]
+    pipeline: str = Field(description="a name from vtexp.encoding.PIPELINES")
+
+    @field_validator("pipeline")
+    @classmethod
+    def _known(cls, v: str) -> str:
+        from .encoding import PIPELINES
+        return _registered("pipeline", v, PIPELINES)
     params: dict[str, Any] = Field(default_factory=dict)
 
 
 class CodingSpec(Model):
-    protocol: Literal["sequential-trace"]
+    protocol: str = Field(description="a name from vtexp.coding.CODINGS")
+
+    @field_validator("protocol")
+    @classmethod
+    def _known(cls, v: str) -> str:
+        from .coding import CODINGS
+        return _registered("coding protocol", v, CODINGS)
     params: dict[str, Any] = Field(default_factory=dict)
 
 
