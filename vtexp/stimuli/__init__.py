@@ -15,11 +15,13 @@ import numpy as np
 
 from .._cv2 import cv2
 from ..errors import InputError
+from .letters import LETTERS, LetterParams, render_letter
 from .shapes import SHAPES, ShapeParams, render_shape
 from .surfaces import SURFACES, SurfaceParams, render_surface
 
 GENERATORS = {
     "shape": (render_shape, ShapeParams),
+    "letter": (render_letter, LetterParams),
     "surface": (render_surface, SurfaceParams),
 }
 
@@ -44,5 +46,6 @@ def read_image(path: str | Path) -> np.ndarray:
     return img
 
 
-__all__ = ["GENERATORS", "SHAPES", "SURFACES", "ShapeParams", "SurfaceParams", "read_image",
+__all__ = ["GENERATORS", "LETTERS", "SHAPES", "SURFACES", "LetterParams", "ShapeParams",
+           "SurfaceParams", "read_image", "render_letter",
            "render_shape", "render_surface"]
