@@ -239,6 +239,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", help="folder for the tables and report")
     s.set_defaults(func=cmd_analyze)
 
+    from .encode_cli import register as register_encode
+    register_encode(sub)
+
     s = sub.add_parser("demo", help="run, log and analyse a short study on the simulator")
     s.add_argument("--data", default="data/demo", help="demo folder (default: ./data/demo)")
     s.add_argument("--participants", type=int, default=4, choices=range(1, 21),

@@ -46,6 +46,29 @@ def read_image(path: str | Path) -> np.ndarray:
     return img
 
 
-__all__ = ["GENERATORS", "LETTERS", "SHAPES", "SURFACES", "LetterParams", "ShapeParams",
+def read_camera(index: int = 0, *, warmup_frames: int = 3) -> np.ndarray:
+    """One frame from an OpenCV VideoCapture device, as 8-bit gray.
+
+    A few frames are read and dropped first, while the camera adjusts its exposure.
+    """
+    cv = cv2()
+    cap = cv.VideoCapture(index)
+    try:
+        if not cap.isOpened():
+            raise InputError(f"no camera at index {index} (OpenCV VideoCapture could not open "
+                             "it); check that it is plugged in and not used by another program")
+        frame = None
+        for _ in range(warmup_frames + 1):
+            ok, f = cap.read()
+            if ok:
+                frame = f
+        if frame is None:
+            raise InputError(f"camera {index} opened but gave no frame")
+    finally:
+        cap.release()
+    return cv.cvtColor(frame, cv.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
+
+
+__all__ = ["GENERATORS", "read_camera", "LETTERS", "SHAPES", "SURFACES", "LetterParams", "ShapeParams",
            "SurfaceParams", "read_image", "render_letter",
            "render_shape", "render_surface"]

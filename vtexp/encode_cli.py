@@ -1,0 +1,140 @@
+"""``vtexp encode``: one image through a pipeline and a coding, written and drawn."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import yaml
+
+from .errors import InputError
+
+# The coding each pipeline's paper uses, unless --coding says otherwise.
+DEFAULT_CODING = {"height-contours": "contour-modes", "edge-trace": "sequential-trace",
+                  "snake-corners": "pulse-trains"}
+
+
+def _params(items: list[str] | None, flag: str) -> dict:
+    out = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InputError(f"expected KEY=VALUE, got {item!r}", key=flag)
+        try:
+            out[key] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            out[key] = value
+    return out
+
+
+def load_image(spec: str):
+    """IMAGE argument: a file, ``camera[:N]``, or ``GENERATOR:key=value,...``."""
+    from .stimuli import GENERATORS, read_camera, read_image
+
+    head, sep, rest = spec.partition(":")
+    if spec == "camera" or (head == "camera" and rest.isdigit()):
+        return read_camera(int(rest or 0))
+    if sep and head in GENERATORS and not Path(spec).exists():
+        fn, model = GENERATORS[head]
+        kv = _params([x for x in rest.split(",") if x], "IMAGE")
+        from pydantic import ValidationError
+        try:
+            model(**kv)
+        except ValidationError as e:
+            err = e.errors(include_url=False)[0]
+            raise InputError(f"{'.'.join(map(str, err['loc']))}: {err['msg']}",
+                             key=f"IMAGE ({head})") from None
+        return fn(**kv)
+    return read_image(spec)
+
+
+def cmd_encode(args) -> int:
+    from pydantic import ValidationError
+
+    from .coding import CODINGS
+    from .draw import draw_pattern, schedule_frames, write_gif, write_png
+    from .encoding import PIPELINES
+    from .errors import UnsafeStimulus
+    from .model import DeviceProfile
+    from .safety import check_schedule
+
+    if args.pipeline not in PIPELINES:
+        raise InputError(f"unknown pipeline {args.pipeline!r}; available: "
+                         f"{', '.join(sorted(PIPELINES))}", key="--pipeline")
+    coding = args.coding or DEFAULT_CODING.get(args.pipeline)
+    if coding not in CODINGS:
+        raise InputError(f"unknown coding {coding!r}; available: {', '.join(sorted(CODINGS))}",
+                         key="--coding")
+    profile = DeviceProfile.load(args.device)
+    gray = load_image(args.image)
+    enc_fn, enc_model = PIPELINES[args.pipeline]
+    cod_fn, cod_model = CODINGS[coding]
+    try:
+        enc = enc_model(**_params(args.param, "--param")).model_dump()
+    except ValidationError as e:
+        err = e.errors(include_url=False)[0]
+        raise InputError(f"{err['msg']}", key=f"--param {'.'.join(map(str, err['loc']))}") from None
+    try:
+        cod = cod_model(**_params(args.coding_param, "--coding-param")).model_dump()
+    except ValidationError as e:
+        err = e.errors(include_url=False)[0]
+        raise InputError(f"{err['msg']}",
+                         key=f"--coding-param {'.'.join(map(str, err['loc']))}") from None
+    pattern = enc_fn(gray, profile.rows, profile.cols, **enc)
+    if not pattern.points:
+        print(f"vtexp: warning: no shape found in {args.image}; the pattern is empty",
+              file=sys.stderr)
+        schedule = None
+    else:
+        schedule = cod_fn(pattern, profile, **cod)
+        try:
+            check_schedule(schedule, profile)
+        except UnsafeStimulus as e:
+            raise InputError(f"unsafe stimulus: {e}", key="--coding-param") from None
+    lines = pattern.lines()
+    print(f"{args.image}: {gray.shape[1]}x{gray.shape[0]} -> {args.pipeline} on {profile.name} "
+          f"({profile.rows}x{profile.cols}): {len(pattern.points)} points on "
+          f"{len(lines)} line(s), {len(pattern.closed)} closed, "
+          f"{sum(p.vertex for p in pattern.points)} vertices, "
+          f"{sum(p.corner for p in pattern.points)} corners")
+    if schedule is not None:
+        print(f"  {coding}: {len(schedule.pulses)} pulses over {schedule.duration_ms:.0f} ms, "
+              f"within {profile.name}'s safety limits")
+    if args.json:
+        Path(args.json).write_text(json.dumps({
+            "image": args.image, "device": profile.name, "pipeline": args.pipeline,
+            "coding": coding, "pattern": pattern.model_dump(mode="json"),
+            "schedule": schedule.model_dump(mode="json") if schedule else None}, indent=2))
+        print(f"  written: {args.json}")
+    if args.png:
+        write_png(draw_pattern(pattern, title=f"{args.pipeline} on {profile.name}"), args.png)
+        print(f"  written: {args.png}")
+    if args.gif:
+        if schedule is None:
+            print("vtexp: warning: no schedule to animate; GIF not written", file=sys.stderr)
+        else:
+            write_gif(schedule_frames(schedule, profile, step_ms=args.gif_step_ms), args.gif,
+                      frame_ms=args.gif_step_ms)
+            print(f"  written: {args.gif}")
+    return 0
+
+
+def register(sub) -> None:
+    s = sub.add_parser("encode", help="turn one image into a pattern and a schedule, and draw them")
+    s.add_argument("image", metavar="IMAGE",
+                   help="image file, 'camera[:N]', or GENERATOR:key=value,... "
+                        "(e.g. surface:surface=ball, shape:shape=square)")
+    s.add_argument("--pipeline", required=True,
+                   help="height-contours | edge-trace | snake-corners")
+    s.add_argument("--device", required=True, help="device profile name or YAML path")
+    s.add_argument("--coding", help="coding protocol (default: the pipeline's paper's)")
+    s.add_argument("--param", action="append", metavar="KEY=VALUE",
+                   help="pipeline parameter (repeatable)")
+    s.add_argument("--coding-param", action="append", metavar="KEY=VALUE",
+                   help="coding parameter (repeatable)")
+    s.add_argument("--json", metavar="OUT", help="write pattern and schedule as JSON")
+    s.add_argument("--png", metavar="OUT", help="draw the pattern")
+    s.add_argument("--gif", metavar="OUT", help="animate the schedule")
+    s.add_argument("--gif-step-ms", type=float, default=50.0, help="time per GIF frame")
+    s.set_defaults(func=cmd_encode)
