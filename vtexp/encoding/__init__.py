@@ -8,10 +8,14 @@ from __future__ import annotations
 
 from .edge_trace import EdgeTraceParams, edge_trace, follow_contour
 from .height_contours import HeightContourParams, height_contours
+from .snake import SnakeCornersParams, snake_corners
+from .spiral_path import SpiralPathParams, spiral_path
 
 PIPELINES = {
     "edge-trace": (edge_trace, EdgeTraceParams),
     "height-contours": (height_contours, HeightContourParams),
+    "snake-corners": (snake_corners, SnakeCornersParams),
+    "spiral-path": (spiral_path, SpiralPathParams),
 }
 
 __all__ = ["PIPELINES", "EdgeTraceParams", "HeightContourParams", "edge_trace", "follow_contour",

@@ -583,14 +583,15 @@ def outline_mask(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return mask
 
 
-def _as_gray(gray: np.ndarray) -> np.ndarray:
+def _as_gray(gray: np.ndarray, pipeline: str = "snake-corners") -> np.ndarray:
     from ..errors import InputError
 
     img = np.asarray(gray)
     if img.ndim != 2:
-        raise InputError(f"snake-corners needs a 2-D grayscale image, got shape {img.shape}")
-    if img.shape[0] < 8 or img.shape[1] < 8:
-        raise InputError(f"snake-corners needs an image of at least 8x8 pixels, got "
+        raise InputError(f"{pipeline} needs a 2-D grayscale image, got an array of shape "
+                         f"{img.shape}")
+    if img.shape[0] < 16 or img.shape[1] < 16:
+        raise InputError(f"{pipeline} needs an image of at least 16x16 pixels, got "
                          f"{img.shape[1]}x{img.shape[0]}")
     if img.dtype != np.uint8:
         img = np.clip(np.nan_to_num(img.astype(np.float64)), 0, 255).astype(np.uint8)
