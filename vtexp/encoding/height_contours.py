@@ -26,7 +26,7 @@ import numpy as np
 from pydantic import Field
 
 from .._cv2 import cv2
-from ..model import Model, Pattern, PatternPoint
+from ..model import Model, Pattern
 
 # Values of seed 000 §2.1.2 step (4).
 VARIANCE_THRESHOLDS = (0.02, 0.06)
@@ -54,6 +54,18 @@ class HeightContourParams(Model):
 
 
 # --------------------------------------------------------------------------- steps
+
+def _otsu(hist: np.ndarray) -> int:
+    """Otsu's threshold of a 256-bin histogram: pixels > t are the bright class."""
+    levels = np.arange(256, dtype=np.float64)
+    w0 = np.cumsum(hist)
+    w1 = w0[-1] - w0
+    m0 = np.cumsum(hist * levels)
+    mu0 = m0 / np.maximum(w0, 1e-12)
+    mu1 = (m0[-1] - m0) / np.maximum(w1, 1e-12)
+    between = w0 * w1 * (mu0 - mu1) ** 2
+    return int(np.argmax(between[:-1]))
+
 
 def _percentile(hist: np.ndarray, q: float) -> float:
     c = np.cumsum(hist)
@@ -93,13 +105,17 @@ def reflectance(gray: np.ndarray, *, size: tuple[int, int] | None = None,
     empty = (np.zeros(out_hw, np.float32), np.zeros(out_hw, bool))
     if g.size == 0 or int(g.max()) == int(g.min()):
         return empty
-    t, bright = cv.threshold(g, 0, 1, cv.THRESH_BINARY + cv.THRESH_OTSU)
-    border = np.concatenate([bright[0], bright[-1], bright[:, 0], bright[:, -1]])
+    # Gray-level statistics from every other pixel of every other row: plenty for
+    # a histogram, and a quarter of the work on a camera frame.
+    sub = g[::2, ::2] if min(g.shape) >= 64 else g
+    hist = cv.calcHist([np.ascontiguousarray(sub)], [0], None, [256], [0, 256]).ravel()
+    t = _otsu(hist.astype(np.float64))
+    border = np.concatenate([g[0], g[-1], g[:, 0], g[:, -1]]) > t
     if border.mean() > 0.5:                 # dark object on a light background
         g = cv.bitwise_not(g)
-        t = 255 - t
-    hist = cv.calcHist([g], [0], None, [256], [0, 256]).ravel().astype(np.float64)
-    t = int(t)
+        hist = hist[::-1].copy()
+        t = 254 - t
+    hist = hist.astype(np.float64)
     dark, light = hist.copy(), hist.copy()
     dark[t + 1:] = 0
     light[:t + 1] = 0
@@ -196,7 +212,7 @@ def shape_from_shading(e: np.ndarray, mask: np.ndarray, *, min_brightness: float
     slope = np.sqrt(1.0 / (e * e) - 1.0).astype(np.float32)   # |grad Z| demanded by eq. 1
     slope2 = slope * slope
     two_s2 = 2.0 * slope2
-    off = ~m
+    inside = m.astype(np.float32)
     z = np.where(m, np.float32(1e9), np.float32(0.0)).astype(np.float32)
     limit = max_iterations or (m.shape[0] + m.shape[1])
     for _ in range(limit):
@@ -206,12 +222,11 @@ def shape_from_shading(e: np.ndarray, mask: np.ndarray, *, min_brightness: float
         d = a - b
         d2 = d * d
         # Both neighbours upwind: the root of (Z-a)^2 + (Z-b)^2 = slope^2 ...
-        new = (a + b + np.sqrt(np.maximum(two_s2 - d2, 0.0))) * 0.5
+        both = (a + b + np.sqrt(np.maximum(two_s2 - d2, 0.0))) * 0.5
         # ... unless they differ by more than the slope: then only the lower one counts.
-        one = d2 >= slope2
-        new[one] = np.minimum(a, b)[one] + slope[one]
+        new = np.where(d2 >= slope2, np.minimum(a, b) + slope, both)
         np.minimum(z, new, out=new)
-        new[off] = 0.0
+        new *= inside
         if np.array_equal(new, z):
             break
         z = new
@@ -338,7 +353,11 @@ def map_to_array(s: np.ndarray, n_lines: int, rows: int, cols: int, *,
     c_edges = np.linspace(0, n, lc + 1).round().astype(int)
     area = np.outer(np.diff(r_edges), np.diff(c_edges)).astype(np.float64)
     counts = np.zeros((n_lines + 1, lr, lc))
+    equal_blocks = m % lr == 0 and n % lc == 0
     for k in range(1, n_lines + 1):
+        if equal_blocks:                        # count by reshaping into the blocks
+            counts[k] = (s.reshape(lr, m // lr, lc, n // lc) == k).sum(axis=(1, 3))
+            continue
         on = (s == k).astype(np.float64)
         # Pixel counts per region by cumulative sums at the region edges.
         cs = np.zeros((m + 1, n + 1))
@@ -391,12 +410,11 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
     tps = line_heights(n_lines, 0.0, 1.0, levels)
     s = sharpen(h, mask, tps)
     arr = map_to_array(s, n_lines, rows, cols, proportion=proportion, align=align)
-    points = [PatternPoint(row=int(r), col=int(c), line=int(arr[r, c]))
+    points = [{"row": int(r), "col": int(c), "line": int(arr[r, c])}
               for r, c in zip(*np.nonzero(arr), strict=True)]
-    return Pattern(rows=rows, cols=cols, points=points, pipeline="height-contours",
-                   params={"lines": lines, "levels": levels, "proportion": proportion,
-                           "cells_per_motor": cells_per_motor, "align": align,
-                           "albedo": albedo, "ambient": ambient,
-                           "n_lines": n_lines, "variance": round(var, 6),
-                           "line_heights": [round(t, 6) for t in tps],
-                           "lattice": [lr, lc]})
+    return Pattern.model_validate({
+        "rows": rows, "cols": cols, "points": points, "pipeline": "height-contours",
+        "params": {"lines": lines, "levels": levels, "proportion": proportion,
+                   "cells_per_motor": cells_per_motor, "align": align, "albedo": albedo,
+                   "ambient": ambient, "n_lines": n_lines, "variance": round(var, 6),
+                   "line_heights": [round(t, 6) for t in tps], "lattice": [lr, lc]}})
