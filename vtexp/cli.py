@@ -132,27 +132,46 @@ def cmd_run(args) -> int:
 
 def cmd_analyze(args) -> int:
     from .analysis import load_sessions, recognition_rates
-    from .analysis.report import markdown_table, write_rate_report
+    from .analysis.report import markdown_table, write_reports
 
-    trials, sessions = load_sessions(args.dirs)
+    trials, sessions = load_sessions(args.dirs, strict=args.strict)
     for s in sessions:
         for w in s.warnings:
-            print(f"vtexp: warning: {w}", file=sys.stderr)
+            kind = "WARNING: CHECKSUM MISMATCH" if "checksum differs" in w else "warning"
+            print(f"vtexp: {kind}: {w}", file=sys.stderr)
+    specs = {}
+    if args.experiment:
+        from .experiment import load_experiment
+        exp = load_experiment(args.experiment, check_stimuli=False).experiment
+        if exp.analysis is None:
+            raise InputError("has no 'analysis:' section to use", path=args.experiment)
+        specs[exp.name] = exp.analysis
     if args.out:
         out = Path(args.out)
     else:
         first = Path(args.dirs[0])
         out = (first if not (first / "session.json").exists() else Path(".")) / "report"
-    rep = write_rate_report(trials, sessions, out)
+    rep, full = write_reports(trials, sessions, out, specs=specs)
     for exp in sorted(trials["experiment"].unique()):
         sub = trials[trials["experiment"] == exp]
         factors = next(s.factors for s in sessions if s.meta["experiment"] == exp)
-        per = recognition_rates(sub, factors, per_participant=True)
-        wide = per.pivot_table(index=factors, columns="participant", values="rate")
-        wide.columns = [f"sub-{c}" for c in wide.columns]
-        wide["mean"] = recognition_rates(sub, factors).set_index(factors)["rate"]
-        _out(f"\n{exp}: recognition rate per condition (rows) and participant (columns)")
-        _out(markdown_table(wide.reset_index()))
+        if sub["correct"].notna().any():
+            per = recognition_rates(sub, factors, per_participant=True)
+            wide = per.pivot_table(index=factors, columns="participant", values="rate",
+                                   observed=True)
+            wide.columns = [f"sub-{c}" for c in wide.columns]
+            wide["mean"] = recognition_rates(sub, factors).set_index(factors)["rate"]
+            _out(f"\n{exp}: recognition rate per condition (rows) and participant (columns)")
+            _out(markdown_table(wide.reset_index()))
+        a = full[exp]["analysis"]
+        for w in a.warnings:
+            print(f"vtexp: warning: {exp}: {w}", file=sys.stderr)
+        if a.sentences:
+            _out(f"\n{exp}: results")
+            for line in a.sentences:
+                _out(f"  {line}")
+        _out(f"\n{exp}: report {full[exp]['html']} (+ report.md and CSV tables in "
+             f"{full[exp]['html'].parent}/)")
     _out(f"\n{len(sessions)} session(s), {len(trials)} trials. Tables and report in {out}/ "
          f"(report: {rep.markdown})")
     return 0
@@ -234,10 +253,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quiet", "-q", action="store_true", help="no per-trial progress")
     s.set_defaults(func=cmd_run)
 
-    s = sub.add_parser("analyze", help="recognition rates from logged sessions")
-    s.add_argument("dirs", nargs="+", metavar="DIR")
+    s = sub.add_parser("analyze", help="statistics and reports from logged sessions")
+    s.add_argument("dirs", nargs="+", metavar="DIR",
+                   help="session folders, or folders holding them (any mix)")
     s.add_argument("--out", help="folder for the tables and report")
+    s.add_argument("--experiment", metavar="FILE",
+                   help="use this experiment file's 'analysis:' section instead of the one "
+                        "recorded in the sessions")
+    s.add_argument("--strict", action="store_true",
+                   help="refuse sessions whose files changed since they ended (checksum "
+                        "mismatch) instead of warning")
     s.set_defaults(func=cmd_analyze)
+
+    from .analysis.cli import register as register_stats
+    register_stats(sub)
 
     from .encode_cli import register as register_encode
     register_encode(sub)

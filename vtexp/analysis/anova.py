@@ -257,6 +257,10 @@ def anova_arrays(values: np.ndarray, shape: tuple[int, ...]) -> dict[str, np.nda
                 gg = sse ** 2 / (p * np.trace(S @ S, axis1=-2, axis2=-1))
                 hf = (n * p * gg - 2) / (p * (n - 1 - p * gg))
                 W, pm = _mauchly(S, n, c)
+            if n - 1 < p:
+                # S is singular: Mauchly's test is undefined (R prints W = 0, p = 0)
+                W = np.full_like(ss, np.nan)
+                pm = np.full_like(ss, np.nan)
         else:
             gg = hf = np.ones_like(ss)
             W = pm = np.full_like(ss, np.nan)
@@ -314,7 +318,9 @@ def rm_anova(data: pd.DataFrame, dv: str, within: list[str] | str, subject: str,
     DataFrame, one row per effect (main effects, then interactions, in afex's
     order): ``df1``, ``df2``, ``SS``, ``SS_error``, ``MSE``, ``F``, ``p``
     (sphericity assumed), ``pes`` (partial η²), ``ges`` (generalised η²),
-    ``mauchly_W``, ``mauchly_p``, ``eps_gg``, ``p_gg``, ``eps_hf`` (uncapped),
+    ``mauchly_W``, ``mauchly_p`` (NaN for one-df effects, and when there are
+    fewer participants than the effect's df + 1, where the test is undefined
+    and R prints W = 0, p = 0), ``eps_gg``, ``p_gg``, ``eps_hf`` (uncapped),
     ``p_hf`` (ε capped at 1), ``n`` (participants analysed). ``attrs`` holds
     ``dropped`` (participants left out) and ``levels``.
 

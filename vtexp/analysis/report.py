@@ -1,10 +1,17 @@
-"""Tables of recognition rates, written as CSV and Markdown and printed."""
+"""Reports: rate tables (CSV, Markdown) and, per experiment, the full report.
+
+The full report (:func:`write_experiment_report`) is one self-contained HTML
+file with the figures embedded as base64 PNG, a Markdown twin with the PNGs
+beside it, and one CSV per table. It formats an
+:class:`~vtexp.analysis.pipeline.ExperimentAnalysis` and computes nothing.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from .load import SessionData
@@ -71,3 +78,254 @@ def write_rate_report(trials: pd.DataFrame, sessions: list[SessionData], out: Pa
     md_path.write_text("\n".join(md), encoding="utf-8")
     files.append(md_path)
     return RateReport(tables, files, md_path)
+
+
+# --------------------------------------------------------------------------- full report
+
+_PERCENT_TABLES = ("rates_by", "recognition_table")
+_LABELS = {"df1": "df1", "df2": "df2", "F": "F", "p": "p", "pes": "η²p", "ges": "η²G",
+           "mauchly_W": "Mauchly W", "mauchly_p": "Mauchly p", "eps_gg": "ε GG",
+           "p_gg": "p GG", "eps_hf": "ε HF", "p_hf": "p HF", "n": "n"}
+
+_CSS = """
+body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; color: #222;
+       line-height: 1.45; padding: 0 1em; }
+table { border-collapse: collapse; margin: 0.6em 0 1.2em; font-size: 0.88em; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.55em; text-align: right; }
+th { background: #f0f3f7; }
+td:first-child, th:first-child { text-align: left; }
+.alarm { border: 3px solid #c00; background: #fee; padding: 0.6em 1em; margin: 1em 0; }
+.alarm h2 { color: #c00; margin-top: 0.2em; }
+.note { color: #555; font-size: 0.9em; }
+img { max-width: 100%; }
+ul.apa li { margin: 0.2em 0; }
+"""
+
+
+def _cell(v, col: str, percent: bool) -> str:
+    if v is None or v is pd.NA or (isinstance(v, float) and np.isnan(v)):
+        return ""
+    if isinstance(v, (float, np.floating)):
+        if percent and col not in ("n_trials", "n_correct", "n_participants", "n"):
+            return f"{v * 100:.1f}%"
+        if col in ("p", "p_gg", "p_hf", "p_adj", "mauchly_p"):
+            return "< .001" if v < 0.001 else f"{v:.3f}"
+        if col in ("df1", "df2", "df") and abs(v - round(v)) < 1e-9:
+            return f"{v:.0f}"
+        return f"{v:.3f}"
+    return str(v)
+
+
+def _display(name: str, df: pd.DataFrame) -> tuple[pd.DataFrame, bool]:
+    percent = name.startswith(_PERCENT_TABLES)
+    if name.startswith(("anova", "simple_effects")):
+        df = df.drop(columns=[c for c in ("SS", "SS_error", "MSE") if c in df.columns])
+    return df, percent
+
+
+def html_table(name: str, df: pd.DataFrame) -> str:
+    import html
+    df, percent = _display(name, df)
+    head = "".join(f"<th>{html.escape(_LABELS.get(str(c), str(c)))}</th>" for c in df.columns)
+    body = []
+    for row in df.itertuples(index=False):
+        body.append("<tr>" + "".join(
+            f"<td>{html.escape(_cell(v, str(c), percent and str(c) in _rate_cols(df)))}</td>"
+            for v, c in zip(row, df.columns)) + "</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _rate_cols(df: pd.DataFrame) -> set[str]:
+    return {c for c in df.columns if c not in ("n_trials", "n_correct", "n_participants", "n")
+            and pd.api.types.is_float_dtype(df[c])}
+
+
+def md_table(name: str, df: pd.DataFrame) -> str:
+    df, percent = _display(name, df)
+    rc = _rate_cols(df) if percent else set()
+    cols = [str(c) for c in df.columns]
+    lines = ["| " + " | ".join(_LABELS.get(c, c) for c in cols) + " |",
+             "|" + "|".join("---" for _ in cols) + "|"]
+    for row in df.itertuples(index=False):
+        lines.append("| " + " | ".join(_cell(v, c, c in rc) for v, c in zip(row, cols)) + " |")
+    return "\n".join(lines)
+
+
+_SECTIONS = [
+    ("rates_by_condition", "Recognition rate per condition (mean of participants ± SE)"),
+    ("recognition_table", "Recognition rate by {rows} and {columns} (seed 001 Table 1 layout)"),
+    ("rates_by_participant", "Recognition rate per participant (all conditions)"),
+    ("anova", "Repeated-measures ANOVA"),
+    ("simple_effects", "Simple effects (seed 000 Table 3)"),
+    ("posthoc", "Paired comparisons"),
+    ("friedman", "Friedman test"),
+    ("wilcoxon", "Wilcoxon signed-rank comparisons"),
+    ("information_transfer", "Information transfer (bits) per condition"),
+    ("agreement", "Accuracy and Cohen's kappa per condition"),
+    ("mixed_model", "Mixed-effects logistic regression (log-odds)"),
+]
+
+
+def _title_of(key: str, a) -> str:
+    for prefix, title in _SECTIONS:
+        if key == prefix or key.startswith(prefix + "_"):
+            if a.spec.table:
+                title = title.format(rows=a.spec.table.rows, columns=a.spec.table.columns)
+            suffix = key[len(prefix):].lstrip("_")
+            return title + (f" ({suffix})" if suffix and suffix[0].isdigit() and
+                            suffix != "1" else "")
+    return key.replace("_", " ")
+
+
+def write_experiment_report(a, out: Path) -> dict[str, Path]:
+    """The report of one experiment: ``report.html`` (self-contained, figures as
+    base64 PNG), ``report.md`` with the PNGs beside it, and one CSV per table.
+
+    ``a`` is an :class:`~vtexp.analysis.pipeline.ExperimentAnalysis`; this
+    function formats it and computes nothing.
+    """
+    import base64
+    import html
+
+    from . import figures
+    from .pipeline import MEASURE_LABEL
+
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, Path] = {}
+    for key, df in a.tables.items():
+        f = out / f"{key}.csv"
+        df.to_csv(f, index=False)
+        files[key] = f
+    sessions_csv = out / "sessions.csv"
+    a.sessions.to_csv(sessions_csv, index=False)
+    files["sessions"] = sessions_csv
+
+    figs: list[tuple[str, str, bytes]] = []
+    T = a.tables
+    if a.spec.figure and "figure_per_participant" in T:
+        fs = a.spec.figure
+        m = T["figure_per_participant"].copy()
+        for col in [fs.x] + ([fs.trace] if fs.trace else []):
+            m[col] = pd.Categorical(m[col].astype(str),
+                                    categories=[str(v) for v in a.levels.get(col, [])] or None)
+        label = MEASURE_LABEL[fs.dv]
+        figs.append(("rates", f"{label.capitalize()} by {fs.x}"
+                     + (f" and {fs.trace}" if fs.trace else "") + " (mean ± SE across "
+                     "participants; seed 000 Fig. 11)",
+                     figures.rate_by_condition(m, fs.dv, fs.x, fs.trace, label)))
+        figs.append(("participants", f"{label.capitalize()} by {fs.x}, one line per "
+                     "participant (seed 000 Figs. 12–13)",
+                     figures.per_participant_lines(m, fs.dv, fs.x, label)))
+    if "confusion" in T:
+        figs.append(("confusion", "Confusion matrices (rows: shape presented; columns: "
+                     "answer; % of the row)",
+                     figures.confusion_heatmaps(T["confusion"], a.spec.confusion.by)))
+    for name, _, png in figs:
+        f = out / f"figure_{name}.png"
+        f.write_bytes(png)
+        files[f"figure_{name}"] = f
+
+    mismatch = a.sessions[a.sessions["checksum"] == "MISMATCH"]
+    unclosed = a.sessions[a.sessions["status"] != "completed"]
+    order = [k for k in T if k not in ("confusion", "figure_per_participant",
+                                       "information_transfer_all", "agreement_all")
+             and not (k.startswith("rates_by_") and k not in ("rates_by_condition",
+                                                              "rates_by_participant"))]
+
+    # ---- HTML
+    h = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(a.title)}"
+         f"</title><style>{_CSS}</style></head><body>",
+         f"<h1>{html.escape(a.title)}</h1>",
+         f"<p>{html.escape(a.experiment)} — {html.escape(a.reference)}. {a.n_participants} "
+         f"participant(s), {a.n_trials} trials (practice excluded). Analyses: "
+         f"{html.escape(a.spec_source)}.</p>"]
+    if len(mismatch):
+        h.append("<div class='alarm'><h2>Checksum mismatch</h2><p>These sessions' files changed "
+                 "after the session ended; the results below include them as they are now:</p>"
+                 "<ul>" + "".join(f"<li>{html.escape(r.folder)}</li>"
+                                  for r in mismatch.itertuples()) + "</ul></div>")
+    h.append("<h2>Sessions</h2>" + html_table("sessions", a.sessions))
+    if len(unclosed):
+        h.append(f"<p class='note'>{len(unclosed)} session(s) did not complete; every trial "
+                 "they logged is included.</p>")
+    if a.warnings:
+        h.append("<ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in a.warnings) + "</ul>")
+    if a.sentences:
+        h.append("<h2>Results</h2><ul class='apa'>"
+                 + "".join(f"<li>{html.escape(s)}</li>" for s in a.sentences) + "</ul>")
+    for name, caption, png in figs:
+        if name == "confusion":
+            continue
+        h.append(f"<h2>{html.escape(caption)}</h2><img alt='{name}' src='data:image/png;base64,"
+                 f"{base64.b64encode(png).decode()}'>")
+    for key in order:
+        h.append(f"<h2>{html.escape(_title_of(key, a))}</h2>" + html_table(key, T[key]))
+        if key.startswith("information_transfer"):
+            h.append("<p class='note'>IT is the maximum-likelihood estimate from the pooled "
+                     "confusion matrix; it is biased upwards with few trials, by about "
+                     "(k−1)²/(2N ln 2) bits (bias_bits; Miller 1955), and IT_corrected "
+                     "subtracts it. Trust it when n ≥ 5k² (n_recommended; Houtsma 1983).</p>")
+    for name, caption, png in figs:
+        if name == "confusion":
+            h.append(f"<h2>{html.escape(caption)}</h2><img alt='{name}' src='data:image/png;"
+                     f"base64,{base64.b64encode(png).decode()}'>")
+    if a.notes:
+        h.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in a.notes)
+                 + "</ul>")
+    h.append("<p class='note'>Repeated-measures ANOVA on participants' cell means (afex::aov_ez "
+             "conventions: Mauchly's test, Greenhouse–Geisser and Huynh–Feldt ε, partial and "
+             "generalised η²). Simple effects: 'separate' = one ANOVA per level with its own "
+             "error term; 'pooled' = the full model's error terms with Satterthwaite df "
+             "(emmeans::joint_tests on the univariate model). Paired comparisons: Holm-corrected "
+             "unless stated. Made by vtexp.</p></body></html>")
+    html_path = out / "report.html"
+    html_path.write_text("\n".join(h), encoding="utf-8")
+    files["html"] = html_path
+
+    # ---- Markdown
+    md = [f"# {a.title}", "",
+          f"{a.experiment} — {a.reference}. {a.n_participants} participant(s), {a.n_trials} "
+          f"trials (practice excluded). Analyses: {a.spec_source}.", ""]
+    if len(mismatch):
+        md += ["> **CHECKSUM MISMATCH** — these sessions' files changed after the session "
+               "ended; the results include them as they are now:", ">"]
+        md += [f"> - {r.folder}" for r in mismatch.itertuples()] + [""]
+    md += ["## Sessions", "", md_table("sessions", a.sessions), ""]
+    if a.warnings:
+        md += [f"- {w}" for w in a.warnings] + [""]
+    if a.sentences:
+        md += ["## Results", ""] + [f"- {s}" for s in a.sentences] + [""]
+    for name, caption, _ in figs:
+        md += [f"## {caption}", "", f"![{name}](figure_{name}.png)", ""]
+    for key in order:
+        md += [f"## {_title_of(key, a)}", "", md_table(key, T[key]), ""]
+    if a.notes:
+        md += ["## Notes", ""] + [f"- {n}" for n in a.notes] + [""]
+    md_path = out / "report.md"
+    md_path.write_text("\n".join(md), encoding="utf-8")
+    files["markdown"] = md_path
+    return files
+
+
+def write_reports(trials: pd.DataFrame, sessions: list[SessionData], out: Path, *,
+                  specs: dict | None = None) -> tuple[RateReport, dict[str, dict]]:
+    """Rate tables for all experiments (``out/report.md``) and, per experiment, the
+    full report in ``out/<experiment>/`` (HTML, Markdown, CSV).
+
+    ``specs`` maps an experiment name to an ``AnalysisSpec`` that replaces the
+    one recorded in its sessions. Returns, per experiment, its files and (key
+    ``analysis``) the :class:`~vtexp.analysis.pipeline.ExperimentAnalysis`.
+    """
+    from .pipeline import analyse_experiment
+
+    rates = write_rate_report(trials, sessions, out)
+    full: dict[str, dict] = {}
+    for exp in sorted(trials["experiment"].unique()):
+        a = analyse_experiment(trials, sessions, exp, spec=(specs or {}).get(exp))
+        full[exp] = {**write_experiment_report(a, out / exp), "analysis": a}
+    with open(rates.markdown, "a", encoding="utf-8") as f:
+        f.write("\n## Full reports\n\n")
+        for exp in full:
+            f.write(f"- {exp}: [{exp}/report.html]({exp}/report.html), "
+                    f"[{exp}/report.md]({exp}/report.md)\n")
+    return rates, full

@@ -1,0 +1,189 @@
+"""`vtexp analyze` end to end: reading any mix of sessions, integrity, the report."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+
+import pandas as pd
+import pytest
+
+from conftest import GRID, write_experiment
+from vtexp.analysis.pipeline import apa_anova, format_p
+
+APA = re.compile(r"F\(\d+(\.\d\d)?, \d+(\.\d\d)?\) = \d+\.\d\d, p (< \.001|= \.\d{3}), η²p = "
+                 r"-?\.\d\d")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """Three participants of the duration/interval study on the simulator."""
+    from conftest import run_cli
+    root = tmp_path_factory.mktemp("grid")
+    for p, acc in (("01", 0.9), ("02", 0.7), ("03", 0.5)):
+        r = run_cli("run", str(GRID), "-p", p, "--responder", f"scripted:accuracy={acc}",
+                    "--data", str(root), "--quiet")
+        assert r.returncode == 0, r.stderr
+    return root / "duration_interval_grid"
+
+
+def test_apa_sentence_has_the_papers_form():
+    row = pd.Series({"df1": 1.0, "df2": 14.0, "F": 28.775, "p": 4e-5, "pes": 0.6727,
+                     "mauchly_p": float("nan"), "eps_gg": 1.0, "eps_hf": 1.0, "p_gg": 4e-5,
+                     "p_hf": 4e-5, "mauchly_W": float("nan")})
+    assert apa_anova(row)[0] == "F(1, 14) = 28.78, p < .001, η²p = .67"
+    row2 = row.copy()
+    row2.update({"df1": 3.0, "df2": 33.0, "F": 3.0035, "p": 0.0443, "mauchly_p": 0.0004,
+                 "eps_gg": 0.45694, "p_gg": 0.0940, "pes": 0.2145})
+    s, used = apa_anova(row2)
+    assert used == "GG" and s == ("F(1.37, 15.08) = 3.00, p = .094, η²p = .21, ε = .46 "
+                                  "(Greenhouse–Geisser)")
+    assert apa_anova(row2, "none")[0].startswith("F(3, 33) = 3.00, p = .044")
+    assert format_p(0.0005) == "p < .001" and format_p(0.5) == "p = .500"
+
+
+def test_analyze_a_mix_of_folders_writes_a_self_contained_report(cli, data, tmp_path):
+    # a study folder and one session folder given directly (overlapping: read once)
+    out = tmp_path / "out"
+    r = cli("analyze", str(data), str(data / "sub-02" / "ses-1"), "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    rep = out / "duration_interval_grid"
+    html = (rep / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == 3            # rates, participants, confusion
+    assert not re.search(r"""src=['"](?!data:)""", html)          # nothing outside the file
+    assert "3 participant(s), 288 trials" in html
+    md = (rep / "report.md").read_text()
+    assert "(figure_rates.png)" in md and (rep / "figure_rates.png").is_file()
+    # Seed 001 Table 1 layout: one row per duration/interval, a column per shape and the mean
+    t1 = pd.read_csv(rep / "recognition_table.csv", dtype={"timing": str})
+    assert list(t1.columns) == ["timing", "triangle", "circle", "square", "rectangle", "mean"]
+    assert list(t1["timing"]) == ["200/100", "200/200", "200/300", "200/400", "300/200",
+                                  "300/300", "300/400", "300/500"]
+    trials = pd.read_csv(out / "trials.csv", dtype=str)
+    scored = trials[trials["timing"] == "300/200"]
+    assert t1.set_index("timing").loc["300/200", "mean"] == pytest.approx(
+        scored["correct"].astype(float).mean())
+    # the declared two-way ANOVA, with an APA sentence per effect
+    anova = pd.read_csv(rep / "anova_1.csv")
+    assert list(anova["effect"]) == ["shape", "timing", "shape:timing"]
+    assert (anova["df2"] == anova["df1"] * 2).all()            # 3 participants: df × (n − 1)
+    sentences = [line for line in r.stdout.splitlines() if ": effect of" in line]
+    assert len(sentences) == 3 and all(APA.search(s) for s in sentences)
+    simple = pd.read_csv(rep / "simple_effects_1.csv")
+    assert set(simple["method"]) == {"separate", "pooled"} and len(simple) == 16
+    assert len(pd.read_csv(rep / "posthoc_1.csv")) == 28         # 8 timings: 28 pairs
+    it = pd.read_csv(rep / "information_transfer.csv")
+    assert len(it) == 8 and (it["bias_bits"] > 0).all()
+    assert "Mixed-effects logistic regression" in html and "fit_vb" in html
+
+
+def test_checksum_mismatch_is_reported_prominently_or_refused(cli, data, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(data, copy)
+    beh = next((copy / "sub-01" / "ses-1").glob("*_beh.tsv"))
+    beh.write_text(beh.read_text().replace("\t1\t", "\t0\t", 1))   # someone edited a value
+    r = cli("analyze", str(copy), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0
+    assert "WARNING: CHECKSUM MISMATCH" in r.stderr and beh.name in r.stderr
+    html = (tmp_path / "out" / "duration_interval_grid" / "report.html").read_text()
+    assert "<div class='alarm'><h2>Checksum mismatch</h2>" in html
+    sessions = pd.read_csv(tmp_path / "out" / "duration_interval_grid" / "sessions.csv",
+                           dtype=str)
+    assert sessions.set_index("participant").loc["01", "checksum"] == "MISMATCH"
+    r = cli("analyze", str(copy), "--strict", "--out", str(tmp_path / "out2"))
+    assert r.returncode == 2 and "checksum mismatch" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_unclosed_session_with_a_cut_row_is_kept_and_reported(cli, data, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(data, copy)
+    d = copy / "sub-03" / "ses-1"
+    meta = json.loads((d / "session.json").read_text())
+    meta.update(status="running", checksums=None)                  # as a killed session
+    (d / "session.json").write_text(json.dumps(meta))
+    beh = next(d.glob("*_beh.tsv"))
+    lines = beh.read_text().splitlines(keepends=True)
+    beh.write_text("".join(lines[:41]) + lines[41][:9])              # 40 trials + a cut row
+    r = cli("analyze", str(copy), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    assert "did not close" in r.stderr and "last row is incomplete" in r.stderr
+    s = pd.read_csv(tmp_path / "out" / "duration_interval_grid" / "sessions.csv", dtype=str)
+    row = s.set_index("participant").loc["03"]
+    assert (row["status"], row["trials"], row["checksum"]) == ("running", "40", "not recorded")
+
+
+@pytest.mark.parametrize("make, needle", [
+    (lambda p: p.joinpath("rates.csv").write_text("a,b\n1,2\n") and p / "rates.csv",
+     "not a vtexp session folder"),
+    (lambda p: p.joinpath("session.json").write_text('{"format": "psychopy"}') and p,
+     "not a vtexp session record"),
+    (lambda p: p, "no vtexp sessions found"),
+])
+def test_files_that_are_not_vtexp_logs_are_refused(cli, tmp_path, make, needle):
+    r = cli("analyze", str(make(tmp_path)))
+    assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_trial_log_given_alone_points_to_its_session_folder(cli, data):
+    beh = next((data / "sub-01" / "ses-1").glob("*_beh.tsv"))
+    r = cli("analyze", str(beh))
+    assert r.returncode == 2 and "give the session folder" in r.stderr
+
+
+def test_experiment_file_overrides_the_recorded_analysis(cli, data, tmp_path):
+    text = GRID.read_text()
+    head = text.split("\nanalysis:")[0]
+    f = write_experiment(tmp_path, head + "\nanalysis:\n  posthoc:\n    - {factor: shape, "
+                         "padjust: bonferroni}\n", name="grid.yaml")
+    r = cli("analyze", str(data), "--experiment", str(f), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    rep = tmp_path / "out" / "duration_interval_grid"
+    ph = pd.read_csv(rep / "posthoc_1.csv")
+    assert len(ph) == 6 and set(ph["padjust"]) == {"bonferroni"}
+    assert not (rep / "anova_1.csv").exists()
+    assert "the experiment file given with --experiment" in (rep / "report.md").read_text()
+
+
+def test_analysis_names_must_be_factors(cli, tmp_path):
+    text = GRID.read_text().replace("{effect: shape, by: timing", "{effect: shape, by: timing_ms")
+    f = write_experiment(tmp_path, text, name="grid.yaml")
+    r = cli("validate", str(f))
+    assert r.returncode == 2
+    assert "analysis.simple_effects[0].by: 'timing_ms' is not a factor" in r.stderr
+    f = write_experiment(tmp_path, GRID.read_text().replace("pooled: true}", "pooled: true, "
+                                                            "style: apa}"), name="g2.yaml")
+    r = cli("validate", str(f))
+    assert r.returncode == 2 and "analysis.table.style" in r.stderr
+
+
+def test_stats_rm_anova_cli_json_equals_the_library(cli):
+    from conftest import ROOT
+    from vtexp.analysis.anova import rm_anova
+    f = ROOT / "tests" / "data" / "grid_3x4.csv"
+    r = cli("stats", "rm-anova", str(f), "--dv", "score", "--within", "shape", "soa",
+            "--subject", "participant", "--json")
+    assert r.returncode == 0, r.stderr
+    got = pd.DataFrame(json.loads(r.stdout)["effects"])
+    want = rm_anova(pd.read_csv(f, dtype=str), "score", ["shape", "soa"], "participant")
+    assert list(got["effect"]) == list(want["effect"])
+    assert (got["F"] - want["F"]).abs().max() < 1e-12
+    r = cli("stats", "rm-anova", str(f), "--dv", "score", "--within", "shape", "soa",
+            "--subject", "participant")
+    assert "soa: F(1.66, 21.60) = 6.02, p = .011, η²p = .32, ε = .55 (Greenhouse–Geisser)" \
+        in r.stdout
+
+
+def test_stats_cli_errors_name_the_file_and_column(cli, tmp_path):
+    from conftest import ROOT
+    f = ROOT / "tests" / "data" / "missing_cell.csv"
+    r = cli("stats", "rm-anova", str(f), "--dv", "correct", "--within", "shape", "timing",
+            "--subject", "participant", "--missing", "error")
+    assert r.returncode == 2 and str(f) in r.stderr and "04: no square × 300/500" in r.stderr
+    r = cli("stats", "rm-anova", str(tmp_path / "nope.csv"), "--dv", "y", "--within", "a",
+            "--subject", "s")
+    assert r.returncode == 2 and "no such file" in r.stderr and "Traceback" not in r.stderr
+    r = cli("stats", "simple-effects", str(f), "--dv", "correct", "--within", "shape", "timing",
+            "--subject", "participant", "--effect", "timing", "--by", "shape", "--method",
+            "pooled", "--json")
+    assert r.returncode == 0 and len(json.loads(r.stdout)["rows"]) == 2

@@ -1,0 +1,326 @@
+"""Run an experiment's declared analyses on its trial table.
+
+:func:`analyse_experiment` computes every table the report shows, each with a
+function of this package that takes a tidy table and returns a tidy table; the
+report (:mod:`.report`) only formats the :class:`ExperimentAnalysis` it gets.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from ..errors import InputError
+from .anova import MissingCellsWarning, rm_anova, simple_effects
+from .confusion import agreement, confusion_matrix, information_transfer
+from .load import SessionData
+from .ordinal import friedman, wilcoxon_pairwise
+from .posthoc import pairwise_tests
+from .rates import recognition_rates
+from .spec import AnalysisSpec, default_spec
+
+__all__ = ["ExperimentAnalysis", "analyse_experiment", "participant_measures", "spec_for",
+           "apa_anova", "format_p"]
+
+MEASURE_LABEL = {"rate": "recognition rate", "rt_s": "reaction time (s)",
+                 "replays": "replays", "answer": "rating"}
+
+
+@dataclass
+class ExperimentAnalysis:
+    experiment: str
+    title: str
+    reference: str
+    factors: list[str]
+    levels: dict[str, list[str]]
+    spec: AnalysisSpec
+    spec_source: str
+    sessions: pd.DataFrame
+    n_participants: int
+    n_trials: int
+    tables: dict[str, pd.DataFrame] = field(default_factory=dict)
+    sentences: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------- measures
+
+def participant_measures(trials: pd.DataFrame, dv: str, by: list[str]) -> pd.DataFrame:
+    """One value of the measure per participant and cell of ``by`` (mean over trials).
+
+    ``rate``: share of correct answers among scored trials; ``rt_s``, ``replays``:
+    mean over answered trials; ``answer``: the answer read as a number (ratings).
+    """
+    keys = ["participant", *by]
+    if dv == "rate":
+        t = trials[trials["correct"].notna()].assign(value=lambda d: d["correct"].astype(float))
+    elif dv == "answer":
+        t = trials.assign(value=pd.to_numeric(trials["answer"], errors="coerce"))
+        if t["value"].isna().all():
+            raise InputError("the answers are not numbers, so 'dv: answer' cannot be analysed "
+                             "(use it for rating scales)")
+        t = t[t["value"].notna()]
+    else:
+        t = trials.assign(value=pd.to_numeric(trials[dv], errors="coerce"))
+        t = t[t["value"].notna()]
+    out = (t.groupby(keys, observed=True, sort=True)["value"]
+           .agg(value="mean", n_trials="size").reset_index())
+    return out.rename(columns={"value": dv})
+
+
+# --------------------------------------------------------------------------- formatting helpers
+
+def format_p(p: float) -> str:
+    """APA: 'p < .001', else 'p = .034' (three decimals, no leading zero)."""
+    if p is None or np.isnan(p):
+        return "p = n/a"
+    if p < 0.001:
+        return "p < .001"
+    return "p = " + f"{p:.3f}".lstrip("0")
+
+
+def _fixed(x: float, digits: int = 2) -> str:
+    """Round half up on the shortest decimal form (28.775 -> 28.78), as people round."""
+    from decimal import ROUND_HALF_UP, Decimal
+    if x != x or x in (float("inf"), float("-inf")):
+        return str(x)
+    return str(Decimal(repr(float(x))).quantize(Decimal(1).scaleb(-digits), ROUND_HALF_UP))
+
+
+def _num2(x: float) -> str:
+    """Two decimals without the leading zero, for values bounded by 1 (η², ε)."""
+    s = _fixed(x, 2)
+    return s.replace("0.", ".", 1) if s.startswith("0.") else s.replace("-0.", "-.", 1)
+
+
+def _df(x: float) -> str:
+    return f"{x:.0f}" if abs(x - round(x)) < 1e-9 else _fixed(x, 2)
+
+
+def apa_anova(row: pd.Series, correction: str = "auto") -> tuple[str, str]:
+    """APA sentence for one ANOVA row, and the correction used.
+
+    'F(1, 14) = 28.78, p < .001, η²p = .67'; with a sphericity correction the
+    dfs are multiplied by ε and the correction is named:
+    'F(1.37, 15.08) = 3.00, p = .094, η²p = .21, ε = .46 (Greenhouse–Geisser)'.
+    ``auto`` applies Greenhouse–Geisser when Mauchly's p < .05, or when the
+    test is undefined (fewer participants than the effect's df + 1).
+    """
+    used = correction
+    if correction == "auto":
+        used = "GG" if (row["df1"] > 1 and not row["mauchly_p"] >= 0.05) else "none"
+    if used == "none" or row["df1"] == 1:
+        df1, df2, p, eps = row["df1"], row["df2"], row["p"], None
+        used = "none"
+    elif used == "GG":
+        eps = row["eps_gg"]
+        df1, df2, p = row["df1"] * eps, row["df2"] * eps, row["p_gg"]
+    else:
+        eps = min(row["eps_hf"], 1.0)
+        df1, df2, p = row["df1"] * eps, row["df2"] * eps, row["p_hf"]
+    s = (f"F({_df(df1)}, {_df(df2)}) = {_fixed(row['F'])}, {format_p(p)}, "
+         f"η²p = {_num2(row['pes'])}")
+    if eps is not None:
+        s += f", ε = {_num2(eps)} ({'Greenhouse–Geisser' if used == 'GG' else 'Huynh–Feldt'})"
+    return s, used
+
+
+# --------------------------------------------------------------------------- the analysis
+
+def spec_for(sessions: list[SessionData], experiment: str, override: AnalysisSpec | None,
+             factors: list[str], scored: bool) -> tuple[AnalysisSpec, str, list[str]]:
+    """The analysis to run: the override, else the sessions' recorded one, else the default."""
+    notes: list[str] = []
+    if override is not None:
+        return override, "the experiment file given with --experiment", notes
+    recorded = [s.meta.get("experiment_loaded", {}).get("analysis") for s in sessions
+                if s.meta.get("experiment") == experiment]
+    declared = [r for r in recorded if r]
+    if declared:
+        distinct = {repr(sorted(d.items())) for d in declared}
+        if len(distinct) > 1:
+            notes.append("the sessions record different 'analysis:' sections; the last "
+                         "session's is used")
+        try:
+            spec = AnalysisSpec.model_validate(declared[-1])
+        except Exception as e:          # pydantic error from an older or edited record
+            raise InputError(f"the 'analysis:' section recorded in the sessions of {experiment} "
+                             f"is not valid: {e}") from None
+        return spec, "the 'analysis:' section recorded in the sessions", notes
+    stim = next((n for s in sessions if s.meta.get("experiment") == experiment
+                 for n, f in s.meta.get("experiment_loaded", {}).get("factors", {}).items()
+                 if f.get("sets") == "stimulus"), None)
+    return (default_spec(factors, stim, scored),
+            "the default analysis (the experiment declares no 'analysis:' section)", notes)
+
+
+def _session_table(sessions: list[SessionData]) -> pd.DataFrame:
+    rows = []
+    for s in sessions:
+        rows.append({"participant": str(s.meta.get("participant")),
+                     "session": s.meta.get("session"), "status": s.status,
+                     "trials": len(s.trials),
+                     "planned": s.meta.get("n_trials_planned"),
+                     "checksum": s.checksum, "folder": str(s.dir)})
+    return pd.DataFrame(rows)
+
+
+def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experiment: str, *,
+                       spec: AnalysisSpec | None = None) -> ExperimentAnalysis:
+    """Every table of one experiment's report, from its tidy trial table.
+
+    ``trials`` is the table of :func:`load_sessions` (practice excluded);
+    ``spec`` overrides the ``analysis:`` section recorded in the sessions.
+    """
+    sub = trials[trials["experiment"] == experiment]
+    mine = [s for s in sessions if s.meta.get("experiment") == experiment]
+    if sub.empty or not mine:
+        raise InputError(f"no trials of experiment {experiment!r}")
+    loaded = mine[-1].meta.get("experiment_loaded", {})
+    factors = mine[0].factors
+    levels = mine[0].levels
+    scored = bool(sub["correct"].notna().any())
+    spec, source, notes = spec_for(sessions, experiment, spec, factors, scored)
+    problems = spec.unknown_factors(factors)
+    if problems:
+        raise InputError(problems[0] + f" ({source})")
+    res = ExperimentAnalysis(
+        experiment=experiment, title=loaded.get("title", experiment),
+        reference=loaded.get("reference", ""), factors=factors, levels=levels, spec=spec,
+        spec_source=source, sessions=_session_table(mine),
+        n_participants=int(sub["participant"].nunique()), n_trials=len(sub), notes=notes)
+    T = res.tables
+    caught: list[warnings.WarningMessage] = []
+
+    def run(fn, *a, **kw):
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always", MissingCellsWarning)
+            out = fn(*a, **kw)
+        caught.extend(w)
+        return out
+
+    if scored:
+        T["rates_by_condition"] = recognition_rates(sub, factors).drop(columns="experiment")
+        for f in factors:
+            T[f"rates_by_{f}"] = recognition_rates(sub, [f]).drop(columns="experiment")
+        T["rates_by_participant"] = recognition_rates(sub, [], per_participant=True) \
+            .drop(columns="experiment")
+    if spec.table:
+        T["recognition_table"] = recognition_table(sub, spec.table.rows, spec.table.columns,
+                                                   pooled=spec.table.pooled)
+    if spec.figure:
+        by = [spec.figure.x] + ([spec.figure.trace] if spec.figure.trace else [])
+        T["figure_per_participant"] = participant_measures(sub, spec.figure.dv, by)
+
+    if res.n_participants < 2 and (spec.anova or spec.simple_effects or spec.posthoc
+                                   or spec.ordinal):
+        notes.append(f"{res.n_participants} participant: the repeated-measures tests need at "
+                     "least 2 and were skipped")
+    else:
+        for i, a in enumerate(spec.anova):
+            within = a.within or factors
+            m = participant_measures(sub, a.dv, within)
+            t = run(rm_anova, m, a.dv, within, "participant")
+            T[f"anova_{i + 1}"] = t
+            for _, row in t.iterrows():
+                sentence, used = apa_anova(row, a.correction)
+                row_note = ""
+                if used != "none":
+                    row_note = (f" (Mauchly's W = {row['mauchly_W']:.2f}, "
+                                f"{format_p(row['mauchly_p'])})"
+                                if row["mauchly_p"] == row["mauchly_p"] else
+                                " (Mauchly's test undefined: fewer participants than df + 1)")
+                res.sentences.append(
+                    f"{MEASURE_LABEL[a.dv].capitalize()}, {' × '.join(within)}: effect of "
+                    f"{row['effect'].replace(':', ' × ')}: {sentence}{row_note}.")
+            if a.note:
+                res.sentences.append(f"(The paper: {a.note}.)")
+        for i, s in enumerate(spec.simple_effects):
+            within = s.within or factors
+            m = participant_measures(sub, s.dv, within)
+            methods = ["separate", "pooled"] if s.method == "both" else [s.method]
+            parts = [run(simple_effects, m, s.dv, within, "participant", effect=s.effect,
+                         by=s.by, method=meth) for meth in methods]
+            t = pd.concat(parts, ignore_index=True)
+            T[f"simple_effects_{i + 1}"] = t
+            for _, row in t.iterrows():
+                res.sentences.append(
+                    f"Simple effect of {row['effect']} at {s.by} = {row[s.by]} "
+                    f"({row['method']} error term): F({_df(row['df1'])}, {_df(row['df2'])}) = "
+                    f"{_fixed(row['F'])}, {format_p(row['p'])}"
+                    + (f", η²p = {_num2(row['pes'])}" if row["method"] == "separate" else "")
+                    + ".")
+        for i, p in enumerate(spec.posthoc):
+            within = p.within or factors
+            m = participant_measures(sub, p.dv, within)
+            T[f"posthoc_{i + 1}"] = run(pairwise_tests, m, p.dv, within, "participant",
+                                        factor=p.factor, by=p.by, padjust=p.padjust)
+        for i, o in enumerate(spec.ordinal):
+            m = participant_measures(sub, o.dv, [o.factor])
+            fr = run(friedman, m, o.dv, o.factor, "participant")
+            T[f"friedman_{i + 1}"] = fr
+            T[f"wilcoxon_{i + 1}"] = run(wilcoxon_pairwise, m, o.dv, o.factor, "participant",
+                                         padjust=o.padjust)
+            r = fr.iloc[0]
+            res.sentences.append(
+                f"Friedman test of {o.factor} on the {MEASURE_LABEL[o.dv]}: χ²({_df(r['df'])}, "
+                f"N = {int(r['n'])}) = {_fixed(r['Q'])}, {format_p(r['p'])}, Kendall's W = "
+                f"{_num2(r['kendall_W'])}.")
+
+    if spec.confusion is not None and scored:
+        by = spec.confusion.by
+        labels = list(mine[-1].meta.get("experiment_loaded", {}).get("question", {})
+                      .get("options", [])) or None
+        T["confusion"] = confusion_matrix(sub, by, labels=labels)
+        T["information_transfer"] = information_transfer(sub, by, labels=labels)
+        T["agreement"] = agreement(sub, by, labels=labels)
+        T["information_transfer_all"] = information_transfer(sub, labels=labels)
+        T["agreement_all"] = agreement(sub, labels=labels)
+    if spec.mixed_model is not None and scored:
+        from .glmm import mixed_logit
+        mf = spec.mixed_model.factors or factors
+        try:
+            g = mixed_logit(sub, mf, interactions=spec.mixed_model.interactions)
+            T["mixed_model"] = g
+            notes.append(f"Mixed logistic model: {g.attrs['formula']}; {g.attrs['method']}; "
+                         f"priors {g.attrs['priors']}; reference levels "
+                         + ", ".join(f"{k} = {v}" for k, v in g.attrs["reference_levels"].items())
+                         + f"; {g.attrs['n_trials']} trials of {g.attrs['n_participants']} "
+                         "participants.")
+        except (InputError, np.linalg.LinAlgError, ValueError) as e:
+            notes.append(f"the mixed logistic model could not be fitted: {e}")
+    for w in caught:
+        msg = str(w.message)
+        if msg not in res.warnings:
+            res.warnings.append(msg)
+    return res
+
+
+def recognition_table(trials: pd.DataFrame, rows: str, columns: str, *,
+                      pooled: bool = True) -> pd.DataFrame:
+    """Rate by ``rows`` × ``columns`` with a mean column (seed 001 Table 1 layout).
+
+    With ``pooled`` (the paper's way) each cell is correct / scored trials over
+    all participants, and ``mean`` the pooled rate of the row; otherwise each
+    cell is the mean of the participants' rates.
+    """
+    scored = trials[trials["correct"].notna()].assign(
+        correct=lambda d: d["correct"].astype(float))
+    if pooled:
+        t = scored.pivot_table(index=rows, columns=columns, values="correct", aggfunc="mean",
+                               observed=True)
+        t["mean"] = scored.groupby(rows, observed=True)["correct"].mean()
+    else:
+        per = recognition_rates(scored, [rows, columns], per_participant=True)
+        t = per.pivot_table(index=rows, columns=columns, values="rate", aggfunc="mean",
+                            observed=True)
+        t["mean"] = recognition_rates(scored, [rows], per_participant=True) \
+            .groupby(rows, observed=True)["rate"].mean()
+    t.columns = [str(c) for c in t.columns]
+    t = t.reset_index()
+    t[rows] = t[rows].astype(str)
+    return t
