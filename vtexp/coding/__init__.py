@@ -9,11 +9,13 @@ parameters (what an experiment's YAML may declare).
 from __future__ import annotations
 
 from .contours import ContourModeParams, contour_modes
+from .pulses import PulseTrainParams, pulse_trains
 from .trace import SequentialTraceParams, sequential_trace
 
 CODINGS = {
     "sequential-trace": (sequential_trace, SequentialTraceParams),
     "contour-modes": (contour_modes, ContourModeParams),
+    "pulse-trains": (pulse_trains, PulseTrainParams),
 }
 
 __all__ = ["CODINGS", "ContourModeParams", "SequentialTraceParams", "contour_modes",

@@ -17,12 +17,14 @@ from .._cv2 import cv2
 from ..errors import InputError
 from .letters import LETTERS, LetterParams, render_letter
 from .shapes import SHAPES, ShapeParams, render_shape
+from .spiral import WhirlpoolParams, render_whirlpool
 from .surfaces import SURFACES, SurfaceParams, render_surface
 
 GENERATORS = {
     "shape": (render_shape, ShapeParams),
     "letter": (render_letter, LetterParams),
     "surface": (render_surface, SurfaceParams),
+    "whirlpool": (render_whirlpool, WhirlpoolParams),
 }
 
 
