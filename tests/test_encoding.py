@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vtexp.coding import sequential_trace
 from vtexp.encoding import edge_trace, follow_contour
@@ -107,3 +109,52 @@ def test_rotated_and_scaled_shapes_mostly_give_one_closed_loop():
                 res = follow_contour(boundary(cells_covered(object_mask(img), 8, 6)))
                 good += len(res) == 1 and res[0][2]
     assert good >= 214
+
+
+@settings(max_examples=60, deadline=None)
+@given(shape=st.sampled_from(SHAPES), rot=st.floats(0, 360), dx=st.floats(0.4, 0.6),
+       dy=st.floats(0.4, 0.6), size=st.floats(0.5, 0.8), noise=st.floats(0, 8),
+       contrast=st.integers(60, 190))
+def test_outline_tolerates_rotation_offset_noise_and_low_contrast(shape, rot, dx, dy, size,
+                                                                  noise, contrast):
+    # Stated tolerance: any rotation, offsets of +-10 % of the frame, sizes 50-80 % of
+    # the height, sensor noise up to 8 gray levels, contrast down to 60 levels. Every
+    # edge cell is visited exactly once, and the longest list is a closed loop holding
+    # at least 80 % of the cells (a stray corner cell may form its own list).
+    img = render_shape(shape=shape, rotation_deg=rot, center_x=dx, center_y=dy, size=size,
+                       noise_sd=noise, background=60, foreground=60 + contrast, seed=3)
+    pat = edge_trace(img, VEST.rows, VEST.cols)
+    cells = [(int(p.row), int(p.col)) for p in pat.points]
+    assert len(cells) == len(set(cells)) >= 6
+    sizes = {k: sum(p.line == k for p in pat.points) for k in pat.lines()}
+    main = max(sizes, key=sizes.get)
+    assert main in pat.closed and sizes[main] >= 0.8 * len(cells)
+
+
+def test_shape_touching_the_border_and_huge_images():
+    # Half the square outside the frame: still an outline, no error.
+    cut = render_shape(shape="square", center_x=0.95, size=0.6)
+    pat = edge_trace(cut, VEST.rows, VEST.cols)
+    assert pat.points and len({(p.row, p.col) for p in pat.points}) == len(pat.points)
+    huge = render_shape(shape="circle", width=6000, height=4500)
+    pat = edge_trace(huge, VEST.rows, VEST.cols)
+    assert pat.closed == [0]
+
+
+def test_paper_edge_modes_trace_the_study_shapes():
+    # 'outline' (Sobel-Otsu-thinning, filled) closes the upright study shapes; the direct
+    # 'edges' route is documented as fragile on 6x8 (docs/decisions.md): it still visits
+    # each edge cell once.
+    for shape in SHAPES:
+        pat = edge_trace(render_shape(shape=shape), VEST.rows, VEST.cols, mode="outline")
+        assert pat.closed == [0], shape
+        pat = edge_trace(render_shape(shape=shape), VEST.rows, VEST.cols, mode="edges")
+        cells = [(p.row, p.col) for p in pat.points]
+        assert cells and len(cells) == len(set(cells)), shape
+
+
+def test_skeleton_mode_traces_letters_as_paths():
+    from vtexp.stimuli import render_letter
+    for letter, closed in (("L", False), ("O", True)):
+        pat = edge_trace(render_letter(letter=letter), VEST.rows, VEST.cols, mode="skeleton")
+        assert pat.points and (0 in pat.closed) == closed, letter
