@@ -207,10 +207,13 @@ def follow_contour(cells: np.ndarray) -> list[tuple[list[tuple[int, int]], list[
     counter-clockwise of the inherited direction: on an outline drawn in cells,
     a diagonal edge is a staircase of alternating left and right turns, and a
     search that began exactly at the inherited direction would find a left
-    turn last, after cutting into the shape (docs/decisions.md). Each cell
-    appended to the list is removed from the array, so no cell is visited
-    twice. A cell where the chain code changes is a vertex. When no neighbour
-    remains, the list ends; cells left over start the next list.
+    turn last, after cutting into the shape (docs/decisions.md). A neighbour
+    that is a dead end (no way on from it, and not next to the head) is taken
+    only when there is no other: at a sharp corner drawn in cells a one-cell
+    spur would otherwise end the loop early; the spur becomes a list of its
+    own. Each cell appended to the list is removed from the array, so no cell
+    is visited twice. A cell where the chain code changes is a vertex. When no
+    neighbour remains, the list ends; cells left over start the next list.
 
     Returns
     -------
@@ -225,15 +228,31 @@ def follow_contour(cells: np.ndarray) -> list[tuple[list[tuple[int, int]], list[
         path, codes = [(r, c)], []
         grid[r, c] = False
         d = 0
+        head = (r, c)
+
+        def unvisited(rr: int, cc: int) -> bool:
+            return 0 <= rr < rows and 0 <= cc < cols and bool(grid[rr, cc])
+
+        def dead_end(rr: int, cc: int) -> bool:
+            # No way on from (rr, cc) except back, and not next to the head (no closing).
+            if len(path) >= 2 and max(abs(rr - head[0]), abs(cc - head[1])) == 1:
+                return False
+            return not any(unvisited(rr + a, cc + b) and (rr + a, cc + b) != (r, c)
+                           for a, b in DIRECTIONS)
         while True:
+            found = None
             for k in range(8):
                 nd = (d + 7 + k) % 8        # from d-1, clockwise
                 dr, dc = DIRECTIONS[nd]
-                nr, nc = r + dr, c + dc
-                if 0 <= nr < rows and 0 <= nc < cols and grid[nr, nc]:
-                    break
-            else:
+                if unvisited(r + dr, c + dc):
+                    if found is None:
+                        found = (r + dr, c + dc, nd)
+                    if not dead_end(r + dr, c + dc):
+                        found = (r + dr, c + dc, nd)
+                        break
+            if found is None:
                 break
+            nr, nc, nd = found
             grid[nr, nc] = False
             path.append((nr, nc))
             codes.append(nd)
