@@ -187,3 +187,18 @@ def test_stats_cli_errors_name_the_file_and_column(cli, tmp_path):
             "--subject", "participant", "--effect", "timing", "--by", "shape", "--method",
             "pooled", "--json")
     assert r.returncode == 0 and len(json.loads(r.stdout)["rows"]) == 2
+
+
+def test_reanalysis_script_shows_where_the_papers_df_come_from(data, tmp_path):
+    import subprocess
+    import sys
+    from conftest import ROOT
+    r = subprocess.run([sys.executable, str(ROOT / "analysis" / "duration_interval_grid.py"),
+                        str(data), "--out", str(tmp_path / "t1.csv")], capture_output=True,
+                       text=True)
+    assert r.returncode == 0, r.stderr
+    # 3 participants: repeated measures gives F(7, 14) for timing (uncorrected df), the
+    # between-participants reading of seed 001 gives F(7, 96 - 32 = 64).
+    assert "C(timing): F(7, 64)" in r.stdout
+    assert "timing: F(" in r.stdout and "η²p" in r.stdout
+    assert len(pd.read_csv(tmp_path / "t1.csv", index_col=0)) == 8

@@ -32,7 +32,7 @@ import threading
 import time
 import tty
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Callable, Literal
 
 from ..errors import DeviceError
@@ -105,9 +105,12 @@ class PtyEmulator:
         self.error: BaseException | None = None
 
     @classmethod
-    def for_profile(cls, profile: DeviceProfile, *, rows: int | None = None,
-                    cols: int | None = None, **kw) -> PtyEmulator:
-        over = {k: v for k, v in (("rows", rows), ("cols", cols)) if v is not None}
+    def for_profile(cls, profile: DeviceProfile, **kw) -> PtyEmulator:
+        """An emulator of a device built to ``profile``. Keywords that are fields of
+        :class:`FirmwareConfig` (``rows=16``, ``max_level=1``, ...) make a device that
+        differs from it; the others go to the emulator (``faults``, ``clock_ppm``...)."""
+        names = {f.name for f in fields(FirmwareConfig)}
+        over = {k: kw.pop(k) for k in list(kw) if k in names}
         return cls(FirmwareConfig.for_profile(profile, **over), **kw)
 
     # -- clock ------------------------------------------------------------------------------
@@ -116,7 +119,7 @@ class PtyEmulator:
         return int((time.perf_counter_ns() - self._origin_ns) * self._rate) // 1000
 
     # -- lifecycle --------------------------------------------------------------------------
-    def start(self) -> str:
+    def _open_pty(self) -> str:
         master, slave = os.openpty()
         # Raw at once: a cooked pty would echo the device's bytes back to it and turn CR
         # into LF before the host's pyserial gets to set raw mode itself.
@@ -126,6 +129,10 @@ class PtyEmulator:
         # The emulator keeps the slave open too, so the host may close and reopen the
         # port (a real device stays plugged in when the host program exits).
         self.port = os.ttyname(slave)
+        return self.port
+
+    def start(self) -> str:
+        self._open_pty()
         self._thread = threading.Thread(target=self._run, name=f"vtexp-emulator {self.port}",
                                         daemon=True)
         self._thread.start()
@@ -162,6 +169,16 @@ class PtyEmulator:
         with self.lock:
             self._unplugged = True
             self._close_fds()
+
+    def replug(self) -> str:
+        """Plug the cable back in: a new port (a pty gets a new path, as a USB serial
+        device may), the same device, still running on its own clock."""
+        with self.lock:
+            self._close_fds()
+            self._tx.clear()
+            self._trace_readers = {k: wire.FrameReader() for k in self._trace_readers}
+            self._unplugged = False
+            return self._open_pty()
 
     def mute(self, muted: bool = True) -> None:
         """Stop (or resume) sending and receiving, leaving the port open."""

@@ -84,14 +84,20 @@ def change_groups(pulses: list[Pulse], cols: int, off: Setting
     return out
 
 
-def wait_until(t_perf: float, spin_s: float = 0.002) -> None:
-    """Sleep until shortly before ``t_perf`` (``time.perf_counter``), then spin to it."""
+def wait_until(t_perf: float, link: Link | None = None, spin_s: float = 0.002) -> None:
+    """Sleep until shortly before ``t_perf`` (``time.perf_counter``), then spin to it.
+
+    Sleeps in slices of at most 10 ms so that a lost ``link`` is raised at once,
+    not at the next frame.
+    """
     while True:
+        if link is not None:
+            link.check()
         left = t_perf - time.perf_counter()
         if left <= 0:
             return
         if left > spin_s:
-            time.sleep(left - spin_s)
+            time.sleep(min(left - spin_s, 0.010))
         else:
             time.sleep(0)           # let the reader thread run while we spin
 
@@ -128,7 +134,7 @@ class SerialDevice(DeviceBase):
 
     def __init__(self, profile: DeviceProfile, port: str, *, baudrate: int = 115200,
                  timing: Timing = "device", heartbeat_ms: int = 200,
-                 watchdog_ms: int | None = None, reply_timeout_ms: float = 50,
+                 watchdog_ms: int | None = None, reply_timeout_ms: float = 25,
                  retries: int = 8, handshake_timeout_s: float = 1.0,
                  trace: Callable[[str, object], None] | None = None):
         super().__init__(profile)
@@ -149,6 +155,8 @@ class SerialDevice(DeviceBase):
         self._play_id = 0
         self._lost_reported = False
         self.alarms: list[wire.Alarm] = []
+        # Recoveries above the link: onsets asked for again, PLAY_DONE replaced by STATUS.
+        self.recovered = {"onsets_fetched": 0, "status_polls": 0}
         self._drive = wire.DRIVE_KINDS[profile.drive.kind]
         self._off = wire.OFF[self._drive]
 
@@ -309,7 +317,7 @@ class SerialDevice(DeviceBase):
         self._play_id = (self._play_id + 1) & 0xFFFF
         pid = self._play_id
         link.expect(UploadBegin(pid, len(wp), self._drive), Ack)
-        per = max(1, (self.hello.max_payload - 5) // UploadChunk.pulse_size(self._drive))
+        per = max(1, (self._payload_budget() - 5) // UploadChunk.pulse_size(self._drive))
         for k in range(0, len(wp), per):
             link.expect(UploadChunk(pid, k, self._drive, tuple(wp[k:k + per])), Ack)
         st = _PlayState(pid, len(wp), [None] * len(wp))
@@ -343,6 +351,7 @@ class SerialDevice(DeviceBase):
             link.check()
             if st.done is not None:
                 return
+            self.recovered["status_polls"] += 1
             status = link.expect(Status(), StatusReply)
             if status.state in (wire.DeviceState.PLAYING, wire.DeviceState.ARMED) \
                     and status.play_id == st.play_id:
@@ -355,30 +364,40 @@ class SerialDevice(DeviceBase):
 
     def _fetch_missing(self, link: Link, st: _PlayState) -> None:
         """Ask again for onsets whose ONSET events were lost (counted, never guessed)."""
-        assert self.hello is not None
-        fit = (self.hello.max_payload - 5) // 8
+        fit = (self._payload_budget() - 5) // 8
         while (missing := [i for i, t in enumerate(st.onsets) if t is None]):
             first = missing[0]
-            rep = link.expect(GetOnsets(st.play_id, first, fit), OnsetsReply,
-                              reply_bytes=8 * fit + 16)
+            count = min(fit, missing[-1] - first + 1)
+            rep = link.expect(GetOnsets(st.play_id, first, count), OnsetsReply,
+                              reply_bytes=8 * count + 16)
             for k, t in enumerate(rep.times_us):
                 if st.onsets[first + k] is None:
                     if t == wire.NOT_PLAYED:
                         raise DeviceError(f"the device on {self.port} did not play pulse "
                                           f"{first + k} of the schedule")
                     st.onsets[first + k] = t
+                    self.recovered["onsets_fetched"] += 1
             if not rep.times_us:
                 raise DeviceError(f"the device on {self.port} has no onset for pulse {first}")
+
+    def _payload_budget(self) -> int:
+        """Largest payload to put in one frame: what the device takes, and no more than
+        a quarter of a heartbeat period on the wire, so that a frame lost and sent
+        again never looks like silence."""
+        assert self.hello is not None
+        period_s = self.hello.heartbeat_ms / 1000.0
+        on_wire = int(self.baudrate / 10 * period_s / 4) - 16
+        return max(64, min(self.hello.max_payload, on_wire))
 
     def _frames(self, state: list[Setting], changes: list[tuple[int, Setting]]
                 ) -> list[Message]:
         """The smallest frame(s) that apply ``changes``: sparse, or dense if shorter."""
-        assert self.hello is not None
         size = wire.SETTINGS[self._drive].SIZE
-        room = self.hello.max_payload - 3
+        budget = self._payload_budget()
+        room = budget - 3
         sparse = len(changes) * (2 + size)
         dense = len(state) * size
-        if dense < sparse and dense + 1 <= self.hello.max_payload:
+        if dense < sparse and dense + 1 <= budget:
             new = list(state)
             for i, s in changes:
                 new[i] = s
@@ -397,7 +416,7 @@ class SerialDevice(DeviceBase):
             for t_ms, changes, starting in groups:
                 target = t0 + t_ms / 1000.0
                 link.next_send_at = target
-                wait_until(target)
+                wait_until(target, link)
                 applied = None
                 for msg in self._frames(state, changes):
                     ack = link.expect(msg, Ack)
@@ -441,7 +460,9 @@ class SerialDevice(DeviceBase):
         return self._call(lambda link: link.expect(Status(), StatusReply))
 
     def link_stats(self) -> dict[str, Any]:
-        return self._link.stats.as_dict() if self._link is not None else {}
+        """The link's counters (:class:`~vtexp.devices.link.LinkStats`) and recoveries."""
+        d = self._link.stats.as_dict() if self._link is not None else {}
+        return {**d, **self.recovered}
 
 
 class EmulatedDevice(SerialDevice):

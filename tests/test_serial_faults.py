@@ -1,0 +1,289 @@
+"""Every fault of issue 4, on the serial backend against the emulator over a real pty.
+
+Dropped, corrupted and delayed bytes: detected, retried, counted, and the device
+drives exactly the schedule (compared with the emulated firmware's own output
+history). A pulled cable or a silent device: DeviceLost within one heartbeat
+period, a message for people, and the device off by itself. A device of
+another geometry: refused at the handshake.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from vtexp.devices import open_device
+from vtexp.devices.emulator import Faults, PtyEmulator
+from vtexp.devices.link import DeviceLost
+from vtexp.devices.serial_device import SerialDevice, setting_of
+from vtexp.devices.wire import Onset
+from vtexp.errors import DeviceError
+from vtexp.model import DeviceProfile, Pulse, PulseTrain, Schedule
+
+ROOT = Path(__file__).resolve().parents[1]
+VEST = DeviceProfile.load("vest_6x8")
+PAD = DeviceProfile.load("pad_20x20")
+SMA = DeviceProfile.load("sma_5x5")
+HEARTBEAT_MS = 200
+
+
+def sweep(n: int = 8, soa: float = 15, dur: float = 20) -> Schedule:
+    """n pulses walking over the vest, levels alternating (each one a visible change)."""
+    return Schedule(device="vest_6x8", pulses=[
+        Pulse(row=i % 8, col=(i * 5) % 6, onset_ms=i * soa, duration_ms=dur, level=1 + i % 2)
+        for i in range(n)])
+
+
+def on_events(emu: PtyEmulator) -> list:
+    return [(a.index, a.setting) for a in emu.actuations() if not a.setting.is_off]
+
+
+def expected(s: Schedule, cols: int = 6) -> list:
+    return sorted((p.row * cols + p.col, setting_of(p)) for p in s.pulses)
+
+
+@pytest.fixture
+def emu():
+    e = PtyEmulator.for_profile(VEST)
+    e.start()
+    yield e
+    e.stop()
+
+
+# --------------------------------------------------------------------------- bytes
+
+@pytest.mark.parametrize("timing", ["device", "host"])
+@pytest.mark.parametrize("fault", [
+    Faults(drop_rate=0.004, seed=11),
+    Faults(corrupt_rate=0.004, seed=12),
+    Faults(drop_rate=0.003, corrupt_rate=0.003, seed=13),
+], ids=["dropped", "corrupted", "both"])
+def test_damaged_bytes_are_detected_retried_counted_and_never_actuate_wrongly(fault, timing):
+    s = sweep()
+    plays = 10
+    dev = open_device("emulator", VEST, faults=fault, timing=timing)
+    with dev:
+        for _ in range(plays):
+            rep = dev.play(s)
+            assert [p.scheduled_onset_ms for p in rep.pulses] == [p.onset_ms for p in s.sorted()]
+        stats = dev.link_stats()
+    emu = dev.emulator
+    injected = sum(c.dropped + c.corrupted for c in emu.fault_counts.values())
+    assert injected > 0
+    # Detected and counted on both ends, retried by the host...
+    assert stats["rx_bad_total"] + emu.firmware.counters.rx_bad > 0
+    assert stats["retries"] + stats["device_frames_lost"] > 0
+    # ... and the device drove exactly the schedule, every time, nothing else.
+    assert sorted(on_events(emu)) == sorted(expected(s) * plays)
+    assert emu.all_outputs_off()
+
+
+def test_a_late_reply_is_retried_and_the_retry_does_not_actuate_twice():
+    # Replies arrive 70 ms late; the host's reply timeout is 30 ms: every request is
+    # sent again, and the device answers the repeat from its cache without acting.
+    s = sweep(4)
+    dev = open_device("emulator", VEST, faults=Faults(delay_ms=70), reply_timeout_ms=30,
+                      timing="host")
+    with dev:
+        dev.play(s)
+        stats = dev.link_stats()
+    assert stats["timeouts"] > 0 and stats["stale_replies"] > 0
+    assert dev.emulator.firmware.counters.duplicates > 0
+    assert sorted(on_events(dev.emulator)) == expected(s)
+
+
+def test_lost_onset_events_are_fetched_again_not_guessed():
+    # Drop only what the device sends: ONSET/PLAY_DONE events get lost and the host
+    # must ask for the onsets (GET_ONSETS) and the status; every onset it reports must
+    # be one the device stamped and sent.
+    sent: list[Onset] = []
+
+    def tap(direction, msg):            # what the device put on the line, before the fault
+        if direction == "to_host" and isinstance(msg, Onset):
+            sent.append(msg)
+    s = sweep(12, soa=5, dur=5)
+    dev = open_device("emulator", VEST, faults=Faults(drop_rate=0.005, direction="to_host",
+                                                        seed=5), emulator_options={"trace": tap})
+    with dev:
+        reports = [dev.play(s) for _ in range(8)]
+        stats = dev.link_stats()
+    assert stats["device_frames_lost"] > 0 and stats["onsets_fetched"] > 0
+    stamped = sorted(m.t_us for m in sent for _ in range(m.count))
+    got = sorted(round((rep.started_at_ms + p.onset_ms) * 1000) for rep in reports
+                 for p in rep.pulses)
+    assert got == stamped
+
+
+# --------------------------------------------------------------------------- the cable
+
+def long_vest_schedule() -> Schedule:
+    return Schedule(device="vest_6x8", pulses=[
+        Pulse(row=r, col=1, onset_ms=300 * r, duration_ms=1500, level=2) for r in range(4)])
+
+
+@pytest.mark.parametrize("timing", ["device", "host"])
+def test_cable_pulled_mid_trial(emu, timing):
+    dev = SerialDevice(VEST, emu.port, timing=timing, heartbeat_ms=HEARTBEAT_MS)
+    with dev:
+        import threading
+        pulled = []
+
+        def pull():
+            pulled.append(time.monotonic())
+            emu.unplug()
+        t = threading.Timer(0.4, pull)
+        t.start()
+        with pytest.raises(DeviceLost) as exc:
+            dev.play(long_vest_schedule())
+        noticed = time.monotonic() - pulled[0]
+    msg = str(exc.value)
+    assert f"lost contact with the tactile device on {emu.port}" in msg
+    assert "cable may have been pulled" in msg and "turns every actuator off by itself" in msg
+    assert noticed < HEARTBEAT_MS / 1000
+    # The device, still powered, heard nothing more and turned everything off by itself.
+    deadline = time.monotonic() + 1.0
+    while not emu.all_outputs_off() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert emu.all_outputs_off()
+    assert emu.firmware.counters.watchdog_trips == 1
+    assert emu.actuations()[-1].cause == "watchdog"
+
+
+def test_device_gone_silent_is_noticed_within_one_heartbeat(emu):
+    dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS)
+    with dev:
+        import threading
+        muted = []
+
+        def mute():
+            muted.append(time.monotonic())
+            emu.mute()
+        threading.Timer(0.3, mute).start()
+        with pytest.raises(DeviceLost, match=r"nothing valid came back .* \(heartbeat period 200 ms\)"):
+            dev.play(long_vest_schedule())
+        assert time.monotonic() - muted[0] < HEARTBEAT_MS / 1000
+    time.sleep(0.3)
+    assert emu.all_outputs_off()        # it heard nothing either: its watchdog fired
+
+
+def test_after_a_pulled_cable_the_session_can_resume_on_the_replugged_device(emu):
+    dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS)
+    dev.open()
+    emu.unplug()
+    with pytest.raises(DeviceLost):
+        dev.play(sweep(3))
+    dev.all_off()           # a session's cleanup: no second error, the loss was reported
+    dev.close()
+    dev.port = emu.replug()
+    with dev:
+        rep = dev.play(sweep(3))
+    assert len(rep.pulses) == 3
+
+
+def test_a_lost_device_is_reported_even_if_the_first_call_is_all_off(emu):
+    dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS)
+    dev.open()
+    emu.unplug()
+    time.sleep(0.05)
+    with pytest.raises(DeviceLost):
+        dev.all_off()
+    dev.close()
+
+
+def test_host_killed_mid_trial_device_turns_off_by_itself(emu):
+    """The host process dies (SIGKILL: no all-off, no goodbye) during a play."""
+    code = ("import sys; from vtexp.devices import open_device; "
+            "from vtexp.model import DeviceProfile, Schedule, Pulse; "
+            "p = DeviceProfile.load('vest_6x8'); "
+            f"d = open_device('serial:{emu.port}', p, heartbeat_ms={HEARTBEAT_MS}); d.open(); "
+            "print('open', flush=True); "
+            "d.play(Schedule(device='vest_6x8', pulses=[Pulse(row=0, col=0, onset_ms=0, "
+            "duration_ms=1900, level=2)]))")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                            env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    try:
+        assert proc.stdout.readline().strip() == "open"
+        deadline = time.monotonic() + 5
+        while emu.outputs()[0].is_off and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert not emu.outputs()[0].is_off, "the play never started"
+        os.kill(proc.pid, signal.SIGKILL)
+        killed = time.monotonic()
+        proc.wait(5)
+        while not emu.all_outputs_off() and time.monotonic() - killed < 1.0:
+            time.sleep(0.005)
+        off_after = time.monotonic() - killed
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert emu.all_outputs_off()
+    assert off_after < 2 * HEARTBEAT_MS / 1000      # watchdog (200 ms) + loop slack
+    assert emu.actuations()[-1].cause == "watchdog"
+
+
+# --------------------------------------------------------------------------- handshake
+
+def test_device_of_another_geometry_is_refused_at_handshake():
+    emu = PtyEmulator.for_profile(PAD, rows=16, cols=16)
+    with emu:
+        dev = SerialDevice(PAD, emu.port)
+        with pytest.raises(DeviceError) as exc:
+            dev.open()
+    msg = str(exc.value)
+    assert "reports a 16x16 array of erm_motor" in msg
+    assert "profile 'pad_20x20' describes a 20x20 array" in msg and "Nothing was played" in msg
+    assert emu.actuations() == []
+
+
+def test_device_of_another_kind_is_refused_at_handshake():
+    emu = PtyEmulator.for_profile(SMA, rows=8, cols=6)     # an 8x6 SMA panel is no vest
+    with emu:
+        with pytest.raises(DeviceError, match=r"8x6 array of sma_pin driven by pulse_train, "
+                                              r"but profile 'vest_6x8'"):
+            SerialDevice(VEST, emu.port).open()
+
+
+def test_device_with_fewer_levels_than_the_profile_allows_is_refused():
+    emu = PtyEmulator.for_profile(VEST, max_level=1)
+    with emu:
+        with pytest.raises(DeviceError, match="allows level 2, but the device .* up to 1 only"):
+            SerialDevice(VEST, emu.port).open()
+
+
+def test_sma_panel_weaker_than_its_profile_is_refused():
+    emu = PtyEmulator.for_profile(SMA, max_width_us=1000)
+    with emu:
+        with pytest.raises(DeviceError, match=r"pulse width of 1.5 ms, but the device .* 1 ms"):
+            SerialDevice(SMA, emu.port).open()
+
+
+def test_a_port_with_no_vtexp_device_says_so():
+    # loop:// echoes what we send: a port that answers, but not as a vtexp device does.
+    dev = SerialDevice(VEST, "loop://", handshake_timeout_s=0.3)
+    with pytest.raises(DeviceError, match=r"no answer to the vtexp handshake from loop:// "
+                                          r"within 0.3 s"):
+        dev.open()
+
+
+def test_a_missing_port_says_where_to_look():
+    with pytest.raises(DeviceError, match=r"cannot open the serial port '/dev/does-not-exist'.*"
+                                          r"vtexp device list"):
+        open_device("serial:/dev/does-not-exist", VEST).open()
+
+
+def test_sma_trains_survive_a_noisy_line():
+    tr = PulseTrain(amplitude_v=2.0, frequency_hz=25, pulse_width_ms=1.5)
+    s = Schedule(device="sma_5x5", pulses=[
+        Pulse(row=i % 5, col=(2 * i) % 5, onset_ms=20 * i, duration_ms=20, train=tr)
+        for i in range(5)])
+    dev = open_device("emulator", SMA, faults=Faults(corrupt_rate=0.004, seed=2))
+    with dev:
+        for _ in range(4):
+            dev.play(s)
+    assert sorted(on_events(dev.emulator)) == sorted(expected(s, 5) * 4)
