@@ -236,15 +236,15 @@ def test_device_of_another_geometry_is_refused_at_handshake():
         with pytest.raises(DeviceError) as exc:
             dev.open()
     msg = str(exc.value)
-    assert "reports a 16x16 array of erm_motor" in msg
-    assert "profile 'pad_20x20' describes a 20x20 array" in msg and "Nothing was played" in msg
+    assert "reports 16x16 erm_motor actuators" in msg
+    assert "profile 'pad_20x20' describes 20x20 erm_motor" in msg and "Nothing was played" in msg
     assert emu.actuations() == []
 
 
 def test_device_of_another_kind_is_refused_at_handshake():
     emu = PtyEmulator.for_profile(SMA, rows=8, cols=6)     # an 8x6 SMA panel is no vest
     with emu:
-        with pytest.raises(DeviceError, match=r"8x6 array of sma_pin driven by pulse_train, "
+        with pytest.raises(DeviceError, match=r"8x6 sma_pin actuators driven by pulse_train, "
                                               r"but profile 'vest_6x8'"):
             SerialDevice(VEST, emu.port).open()
 

@@ -271,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .encode_cli import register as register_encode
     register_encode(sub)
 
+    from .devices.cli import register as register_device
+    register_device(sub)
+
     s = sub.add_parser("demo", help="run, log and analyse a short study on the simulator")
     s.add_argument("--data", default="data/demo", help="demo folder (default: ./data/demo)")
     s.add_argument("--participants", type=int, default=4, choices=range(1, 21),

@@ -232,9 +232,9 @@ class SerialDevice(DeviceBase):
         dev_drive = DRIVE_NAMES.get(h.drive, f"drive kind {h.drive}")
         if (h.rows, h.cols, dev_kind, dev_drive) != (p.rows, p.cols, p.actuator, p.drive.kind):
             raise DeviceError(
-                f"the device on {self.port} ({h.firmware}, id {h.device_id!r}) reports a "
-                f"{h.rows}x{h.cols} array of {dev_kind} driven by {dev_drive}, but profile "
-                f"{p.name!r} describes a {p.rows}x{p.cols} array of {p.actuator} driven by "
+                f"the device on {self.port} ({h.firmware}, id {h.device_id!r}) reports "
+                f"{h.rows}x{h.cols} {dev_kind} actuators driven by {dev_drive}, but profile "
+                f"{p.name!r} describes {p.rows}x{p.cols} {p.actuator} actuators driven by "
                 f"{p.drive.kind}. Nothing was played. Choose the profile of the device "
                 "that is connected (--profile), or connect the right device.")
         lim = p.limits
