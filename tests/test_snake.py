@@ -168,9 +168,9 @@ def reference_sweep(edge, pts, betas, *, alpha, gamma, window, order, corner_cur
         energies = []
         for k, v in enumerate(cands):
             inside = half <= v.imag <= h_img - 1 - half and half <= v.real <= w_img - 1 - half
-            e_img = (g_min - mags[k]) / (g_max - g_min) if inside else math.inf
-            energies.append(alpha * (cont[k] / mx_cont) + betas[i] * (curv[k] / mx_curv)
-                            + gamma * e_img)
+            e_img = (g_min - mags[k]) * (gamma / (g_max - g_min)) if inside else math.inf
+            energies.append(cont[k] * (alpha / mx_cont) + curv[k] * (betas[i] / mx_curv)
+                            + e_img)
         best = int(np.argmin(energies))
         if best:
             moved += 1

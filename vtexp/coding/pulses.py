@@ -10,7 +10,7 @@ after another along their order, each starting a stimulus-onset asynchrony
 the two pins of an edge midpoint, or the four of a cell centre, are driven
 together.
 
-Decisions (also in docs/decisions.md):
+Decisions:
 
 - **Phantom intensities** follow a declared model. For a point at fractional
   position (row r + β_r, col c + β_c) the four surrounding pins get the

@@ -8,7 +8,7 @@ every multiple of ``1 / subdivisions``: ``subdivisions=2`` gives the paper's
 9x9 grid on 5x5 pins, ``subdivisions=1`` the pins alone (the paper's
 "without phantom sensation" condition, Fig. 8).
 
-How a curve becomes grid points (decisions, also in docs/decisions.md):
+How a curve becomes grid points (decisions):
 
 1. **Fit.** The curve's bounding box is scaled by one factor in both directions
    so that it spans the pins from the first to the last row or column, keeping
@@ -68,7 +68,7 @@ def fit_to_array(points: np.ndarray, rows: int, cols: int, *, margin: float = 0.
     scales = [avail[k] / span[k] for k in (0, 1) if span[k] > 1e-12]
     scale = min(scales) if scales else 0.0
     out = (pts - (lo + hi) / 2.0) * scale + centre
-    return np.clip(out, 0.0, [rows - 1, cols - 1])
+    return np.minimum(np.maximum(out, 0.0), [rows - 1, cols - 1])
 
 
 def _densify(pts: np.ndarray, closed: bool, max_step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -130,24 +130,24 @@ def grid_path(points: np.ndarray, corner: np.ndarray | None, rows: int, cols: in
         return q / sub, corner.copy(), 0, 0
     dense, vertex_at = _densify(pts, closed, 0.25 / sub)
     q = np.clip(np.floor(dense * sub + 0.5), 0, lim).astype(np.int64)
-    is_corner = {(int(a), int(b)) for a, b in q[vertex_at[corner]]}
+    is_corner = set(map(tuple, q[vertex_at[corner]].tolist()))
     step = np.ones(len(q), bool)
     step[1:] = np.any(q[1:] != q[:-1], axis=1)
-    path = [(int(a), int(b)) for a, b in q[step]]
+    path = list(map(tuple, q[step].tolist()))
     path = _drop_staircase(_merge_repeats(path, closed), closed, is_corner)
     path, dropped, repeated = _drop_revisits(path, closed)
     if dropped:
         path = _drop_staircase(path, closed, is_corner)
-    arr = np.array(path, dtype=np.int64).reshape(-1, 2)
-    if closed and len(arr) >= 3:
-        x, y = arr[:, 1], arr[:, 0]
-        area2 = int(x @ np.roll(y, -1) - np.roll(x, -1) @ y)
-        if area2 < 0:          # counter-clockwise on screen (rows grow downwards)
-            arr = arr[::-1]
-        head = int(np.lexsort((arr[:, 1], arr[:, 0]))[0])
-        arr = np.roll(arr, -head, axis=0)
-    flags = np.array([(int(a), int(b)) in is_corner for a, b in arr], dtype=bool)
-    return arr / sub, flags, dropped, repeated
+    if closed and len(path) >= 3:
+        # Shoelace sum in (x = col, y = row): positive is clockwise on screen (rows grow
+        # downwards).
+        area2 = sum(a[1] * b[0] - b[1] * a[0] for a, b in zip(path, path[1:] + path[:1]))
+        if area2 < 0:
+            path.reverse()
+        head = path.index(min(path))          # first in raster order: least row, then col
+        path = path[head:] + path[:head]
+    flags = np.array([c in is_corner for c in path], dtype=bool)
+    return np.array(path, dtype=np.float64).reshape(-1, 2) / sub, flags, dropped, repeated
 
 
 def _drop_revisits(path: list[tuple[int, int]], closed: bool

@@ -85,7 +85,9 @@ class SnakeCornersParams(Model):
         4.0, description="distance between snake points, working-resolution pixels")
     max_iterations: Annotated[int, Field(ge=1, le=10000)] = 100
     stop_fraction: Annotated[float, Field(ge=0, le=1)] = Field(
-        0.1, description="stop when fewer than this share of the points moved in a sweep")
+        0.2, description="stop when fewer than this share of the points moved in a sweep "
+                         "(on whole pixels, points keep sliding along straight sides to "
+                         "even out their spacing: about a tenth of them, sweep after sweep)")
     corner_curvature: Annotated[float, Field(ge=0, le=4)] = Field(
         0.25, description="Williams & Shah's threshold1 on ‖u_i/|u_i| − u_{i+1}/|u_{i+1}|‖²")
     corner_edge: Annotated[float, Field(ge=0)] = Field(
@@ -230,7 +232,7 @@ def _colour_groups(n: int) -> list[np.ndarray]:
 
 def greedy_snake(edge: np.ndarray, init: np.ndarray, *, alpha: float = 1.0,
                  beta: float | np.ndarray = 1.0, gamma: float = 1.2, window: int = 3,
-                 max_iterations: int = 200, stop_fraction: float = 0.05,
+                 max_iterations: int = 100, stop_fraction: float = 0.2,
                  corner_curvature: float = 0.25, corner_edge: float = 10.0,
                  fixed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Greedy active contour of Williams & Shah (1992), seed 002 eq. 4.
@@ -314,7 +316,8 @@ def greedy_snake(edge: np.ndarray, init: np.ndarray, *, alpha: float = 1.0,
     kernel = np.ones((window, window), np.uint8)
     gmax = cv.dilate(edge, kernel, borderType=cv.BORDER_REPLICATE)
     gmin = np.minimum(cv.erode(edge, kernel, borderType=cv.BORDER_REPLICATE), gmax - 5.0)
-    inv = (1.0 / (gmax - gmin)).ravel().astype(np.float64)
+    # γ is folded into the scale: γ E_img = (min − ‖∇I‖) · γ / (max − min).
+    inv = (gamma / (gmax - gmin)).ravel().astype(np.float64)
     gmin = gmin.ravel().astype(np.float64)
     mag = edge.astype(np.float64)
     mag[:half] = mag[h_img - half:] = -1e9     # never step outside the inner box
@@ -335,22 +338,24 @@ def greedy_snake(edge: np.ndarray, init: np.ndarray, *, alpha: float = 1.0,
     groups = [g[~fixed[g]] for g in _colour_groups(n)]
     plan = [(g, before[g], after[g]) for g in groups if g.size]
     inv_n = 1.0 / n
+    # α and β_i are folded into the normalisations: α E_cont / max = E_cont · (α / max).
+    beta_cols = [betas[g][:, None] for g, _, _ in plan]
     iterations = 0
     for iterations in range(1, max_iterations + 1):
         d_mean = float(np.abs(z - z[before]).sum()) * inv_n
         moved = 0
-        for g, gp, gn in plan:
+        for (g, gp, gn), beta_g in zip(plan, beta_cols):
             zg, fg = z[g], fl[g]
             zp = z[gp]
             cand = zg[:, None] + o_z
             e_cont = np.abs(d_mean - np.abs(cand - zp[:, None]))
-            e_cont /= np.maximum(e_cont.max(axis=1, keepdims=True), 1e-12)
+            e_cont *= alpha / np.maximum(e_cont.max(axis=1, keepdims=True), 1e-12)
             e_curv = np.abs((zp + z[gn] - 2.0 * zg)[:, None] - o_2z)
             e_curv *= e_curv
-            e_curv /= np.maximum(e_curv.max(axis=1, keepdims=True), 1e-12)
-            e_img = (gmin[fg][:, None] - mag[fg[:, None] + o_f]) * inv[fg][:, None]
-            energy = alpha * e_cont + betas[g][:, None] * e_curv + gamma * e_img
-            best = energy.argmin(axis=1)
+            e_curv *= beta_g / np.maximum(e_curv.max(axis=1, keepdims=True), 1e-12)
+            e_cont += e_curv
+            e_cont += (gmin[fg][:, None] - mag[fg[:, None] + o_f]) * inv[fg][:, None]
+            best = e_cont.argmin(axis=1)
             moved += int(np.count_nonzero(best))
             z[g] = zg + o_z[best]
             fl[g] = fg + o_f[best]
@@ -361,7 +366,9 @@ def greedy_snake(edge: np.ndarray, init: np.ndarray, *, alpha: float = 1.0,
         k = k.real * k.real + k.imag * k.imag
         is_corner = ((k > k[before]) & (k > k[after]) & (k > corner_curvature)
                      & (edge_flat[fl] > corner_edge))
-        betas[is_corner] = 0.0
+        if is_corner.any():
+            betas[is_corner] = 0.0
+            beta_cols = [betas[g][:, None] for g, _, _ in plan]
         if moved < stop_fraction * n or moved == 0:
             break
     r = np.rint(z.imag).astype(np.int64)
@@ -398,12 +405,19 @@ def contour_corners(smooth: np.ndarray, gx: np.ndarray, gy: np.ndarray, contour:
     poly = np.asarray(contour, dtype=np.float64)
     span = np.ptp(poly, axis=0).min() if len(poly) else 0
     min_dist = max(3.0, 0.1 * float(span))
-    found = cv.goodFeaturesToTrack(img8, maxCorners=max_corners, qualityLevel=quality,
+    # Only the contour's bounding box (and a margin) can hold a corner of it.
+    pad = int(np.ceil(max_distance)) + block_size
+    r0 = max(int(poly[:, 0].min()) - pad, 0) if len(poly) else 0
+    c0 = max(int(poly[:, 1].min()) - pad, 0) if len(poly) else 0
+    r1 = min(int(poly[:, 0].max()) + pad + 1, img8.shape[0]) if len(poly) else img8.shape[0]
+    c1 = min(int(poly[:, 1].max()) + pad + 1, img8.shape[1]) if len(poly) else img8.shape[1]
+    found = cv.goodFeaturesToTrack(np.ascontiguousarray(img8[r0:r1, c0:c1]),
+                                   maxCorners=max_corners, qualityLevel=quality,
                                    minDistance=min_dist, blockSize=block_size,
                                    useHarrisDetector=(detector == "harris"))
     if found is None:
         return np.zeros((0, 2))
-    rc = found[:, 0, ::-1].astype(np.float64)
+    rc = found[:, 0, ::-1].astype(np.float64) + [r0, c0]
     contour_xy = np.ascontiguousarray(poly[:, ::-1], dtype=np.float32).reshape(-1, 1, 2)
     keep = [abs(cv.pointPolygonTest(contour_xy, (float(x), float(y)), True)) <= max_distance
             for y, x in rc]
