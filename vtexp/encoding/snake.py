@@ -15,26 +15,32 @@ phantom points between them (9x9).
 The pipeline, :func:`snake_corners`, in order:
 
 1. **Working resolution.** The image is reduced by an integer factor with
-   area averaging to about ``work_px`` pixels along its longer side: the
-   array has 5 pins across, so a camera's full resolution adds cost, not
-   information. Corners are refined at full resolution (step 5).
+   area averaging to about ``work_px`` pixels along its longer side (a
+   640x480 frame to 160x120): the array has 5 pins across, so a camera's
+   full resolution adds cost, not information.
 2. **Initial contour** from a cheap segmentation: Otsu's threshold (the object
    is the side not touching the image border), the largest outer contour,
-   resampled to points ``spacing_px`` apart by arc length.
-3. **Greedy snake** (:func:`greedy_snake`), Williams & Shah's algorithm: each
-   point moves to the position in its ``window x window`` neighbourhood that
-   minimises α E_cont + β_i E_curv + γ E_img, each term normalised over the
-   neighbourhood as Williams & Shah do; after each sweep β_i is set to 0 at
-   points of high curvature on strong edges (their corner rule); it stops when
-   fewer than ``stop_fraction`` of the points moved.
-4. **Corners assist** (:func:`contour_corners`): Shi-Tomasi corners
-   (``cv2.goodFeaturesToTrack``) are kept if they lie on the converged
-   contour and are corners of it (the smaller eigenvalue of eq. 5 is a fair
-   share of the larger one, which a smooth curve's edge never reaches); the
-   nearest snake point is moved onto each corner, held there with β = 0, and
-   the snake runs again so its other points spread along the sides.
-5. **Full resolution.** Corners are refined with ``cv2.cornerSubPix`` on the
-   full-resolution image; snake points are scaled back to it.
+   resampled to points ``spacing_px`` apart by arc length. It already lies
+   within a pixel or two of the edge, so the snake needs few sweeps.
+3. **Corners** (:func:`contour_corners`, :func:`refine_corners`): Shi-Tomasi
+   corners (``cv2.goodFeaturesToTrack``: the smaller eigenvalue of the
+   gradient matrix M of eq. 6 — eq. 5 as printed speaks of second
+   derivatives of M, but the text and cvGoodFeaturesToTrack use M's
+   eigenvalues) are kept if they lie on the contour and are corners of it
+   (the smaller eigenvalue is a fair share of the larger one, which a smooth
+   curve's edge never reaches), then moved to sub-pixel precision with
+   ``cv2.cornerSubPix``. The nearest contour point is put on each corner and
+   held there with β = 0: this is how the corners "assist" the snake.
+4. **Greedy snake** (:func:`greedy_snake`), Williams & Shah's algorithm: each
+   free point moves to the position in its ``window x window`` neighbourhood
+   that minimises α E_cont + β_i E_curv + γ E_img, each term normalised over
+   the neighbourhood as Williams & Shah do; after each sweep β_i is set to 0
+   at points of high curvature on strong edges (their corner rule); it stops
+   when fewer than ``stop_fraction`` of the points moved. The other points
+   spread evenly between the held corners.
+5. **Sub-pixel edges** (:func:`subpixel_edges`, vtexp's addition): each free
+   point moves along its normal to the parabola peak of ‖∇I‖; then all
+   points are scaled back to full-resolution pixels.
 6. **Grid.** The outline is fitted into the array and mapped to the virtual
    grid (:mod:`vtexp.encoding.phantom_grid`): an ordered closed loop,
    clockwise, with ``corner=True`` where a corner fell.
