@@ -109,6 +109,12 @@ class SnakeCornersParams(Model):
     corner_distance_px: Annotated[float, Field(gt=0)] = Field(
         3.0, description="how far from the contour a corner may lie, working pixels")
     max_corners: Annotated[int, Field(ge=1, le=64)] = 12
+    corner_block_px: Annotated[int, Field(ge=3, le=15)] = Field(
+        5, description="side of the window over which goodFeaturesToTrack sums M (eq. 6), "
+                       "working pixels")
+    isotropy_block_px: Annotated[int, Field(ge=3, le=15)] = Field(
+        7, description="side of the window of the λ_min/λ_max test, working pixels (with 5, "
+                       "noise of a quarter of the contrast makes corners on a circle)")
     work_px: Annotated[int, Field(ge=32, le=4096)] = Field(
         160, description="longer side of the working image, pixels")
     blur_sigma: Annotated[float, Field(ge=0, le=10)] = Field(
@@ -386,7 +392,8 @@ def greedy_snake(edge: np.ndarray, init: np.ndarray, *, alpha: float = 1.0,
 def contour_corners(smooth: np.ndarray, gx: np.ndarray, gy: np.ndarray, contour: np.ndarray,
                     *, detector: str = "shi-tomasi", quality: float = 0.05,
                     isotropy: float = 0.08, max_distance: float = 3.0,
-                    max_corners: int = 12, block_size: int = 5) -> np.ndarray:
+                    max_corners: int = 12, block_size: int = 5,
+                    isotropy_block: int = 7) -> np.ndarray:
     """Corners of an outline: Shi-Tomasi (or Harris) corners that lie on it (seed 002 eqs. 5-6).
 
     ``cv2.goodFeaturesToTrack`` ranks pixels by the smaller eigenvalue of the
@@ -397,9 +404,11 @@ def contour_corners(smooth: np.ndarray, gx: np.ndarray, gy: np.ndarray, contour:
     therefore kept only if, in addition,
 
     - it lies within ``max_distance`` pixels of the contour, and
-    - λ_min / λ_max of M there is at least ``isotropy``: on an edge, even a
-      curved one, the gradients share one direction and λ_min stays a small
-      fraction of λ_max; at a corner two directions meet.
+    - λ_min / λ_max of M, summed over ``isotropy_block`` pixels around it, is
+      at least ``isotropy``: on an edge, even a curved one, the gradients
+      share one direction and λ_min stays a small fraction of λ_max; at a
+      corner two directions meet. The window is larger than the detector's
+      so that noise along an edge averages out.
 
     Returns
     -------
@@ -432,7 +441,7 @@ def contour_corners(smooth: np.ndarray, gx: np.ndarray, gy: np.ndarray, contour:
         return rc
     # λ_min/λ_max of M (eq. 6, box weights) at each remaining corner.
     h, w = gx.shape
-    r0 = block_size // 2
+    r0 = isotropy_block // 2
     d = np.arange(-r0, r0 + 1)
     ctr = np.rint(rc).astype(np.int64)
     rr = np.clip(ctr[:, 0, None, None] + d[None, :, None], 0, h - 1)
@@ -479,7 +488,9 @@ def find_outline(gray: np.ndarray, **params) -> SnakeResult:
     if p.corners:
         found = contour_corners(smooth, gx, gy, pts, detector=p.corner_detector,
                                 quality=p.corner_quality, isotropy=p.corner_isotropy,
-                                max_distance=p.corner_distance_px, max_corners=p.max_corners)
+                                max_distance=p.corner_distance_px, max_corners=p.max_corners,
+                                block_size=p.corner_block_px,
+                                isotropy_block=p.isotropy_block_px)
         if len(found):
             h, w = edge.shape
             for rc in np.clip(refine_corners(smooth, found), 0, [h - 1, w - 1]):
