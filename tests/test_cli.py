@@ -66,7 +66,10 @@ def test_demo_runs_logs_and_reports(cli, tmp_path):
     assert len(sessions) == 2
     assert all(json.loads(s.read_text())["status"] == "completed" for s in sessions)
     assert (root / "report" / "report.md").is_file()
-    assert "Report:" in r.stdout and str(root / "report" / "report.md") in r.stdout
+    html = root / "report" / "duration_interval_grid" / "report.html"
+    assert "Report:" in r.stdout and str(html) in r.stdout
+    assert "data:image/png;base64," in html.read_text()       # figures embedded
+    assert "effect of timing: F(" in r.stdout
     # The study's reanalysis script reproduces the paper's Table 1 layout from the data.
     import subprocess
     import sys

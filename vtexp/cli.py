@@ -179,7 +179,7 @@ def cmd_analyze(args) -> int:
 
 def cmd_demo(args) -> int:
     from .analysis import load_sessions
-    from .analysis.report import markdown_table, write_rate_report
+    from .analysis.report import markdown_table, write_reports
     from .compile import compile_conditions
     from .experiment import load_experiment
     from .resources import experiments_dir
@@ -212,12 +212,20 @@ def cmd_demo(args) -> int:
              f"{sum(1 for r in res.records if r.correct)} correct, {stim_s:.0f} s of "
              f"stimulation played on the simulated vest")
     trials, sessions = load_sessions([root / exp.name])
-    rep = write_rate_report(trials, sessions, root / "report")
+    rep, full = write_reports(trials, sessions, root / "report")
     _out("\nRecognition rate by duration/SOA (mean over participants ± SE):")
     _out(markdown_table(rep.tables[f"{exp.name}/by_timing"].drop(columns="experiment")))
+    sentences = full[exp.name]["analysis"].sentences
+    main = [x for x in sentences if not x.startswith("Simple effect")]
+    if main:
+        _out("\nThe analyses the experiment declares (seed 001 §4.1), main results:")
+        for line in main:
+            _out(f"  {line}")
+        if len(main) < len(sentences):
+            _out(f"  ... and {len(sentences) - len(main)} simple effects in the report.")
     _out(f"\nData:   {root / exp.name}/sub-*/ses-1/  (trial log .tsv, sidecar .json, "
          "device events .tsv, session.json)")
-    _out(f"Report: {rep.markdown}  (+ CSV tables in {root / 'report'}/)")
+    _out(f"Report: {full[exp.name]['html']}  (+ report.md and CSV tables beside it)")
     _out(f"Next:   vtexp plan {path} --participant 01   |   vtexp analyze {root / exp.name}")
     return 0
 
