@@ -29,22 +29,22 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import json  # noqa: E402
-import platform  # noqa: E402
-import statistics  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import json
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vtexp._cv2 import cv2  # noqa: E402
-from vtexp.encoding.snake import find_outline, outline_mask, snake_corners  # noqa: E402
-from vtexp.stimuli import render_shape  # noqa: E402
-from vtexp.stimuli.shapes import ShapeParams, _shape_polygon  # noqa: E402
+from vtexp._cv2 import cv2
+from vtexp.encoding.snake import find_outline, outline_mask, snake_corners
+from vtexp.stimuli import render_shape
+from vtexp.stimuli.shapes import ShapeParams, _shape_polygon
 
 WIDTH, HEIGHT = 640, 480
 SHAPES = ("circle", "square", "triangle")
@@ -101,12 +101,12 @@ def run(repeats: int = 200, baseline_repeats: int = 5, shapes=SHAPES) -> dict:
     rows = []
     try:
         for shape in shapes:
-            params = dict(shape=shape, width=WIDTH, height=HEIGHT)
+            params = {"shape": shape, "width": WIDTH, "height": HEIGHT}
             gray = render_shape(**params)
             truth = render_shape(**params, background=0, foreground=255) > 127
-            t_ours, c_ours, pattern = _timed(lambda: snake_corners(gray, 5, 5), repeats)
+            t_ours, c_ours, pattern = _timed(lambda g=gray: snake_corners(g, 5, 5), repeats)
             outline = find_outline(gray)
-            t_base, c_base, base = _timed(lambda: skimage_snake(gray), baseline_repeats)
+            t_base, c_base, base = _timed(lambda g=gray: skimage_snake(g), baseline_repeats)
             ours_ms, base_ms = statistics.median(t_ours), statistics.median(t_base)
             rows.append({
                 "shape": shape, "image": f"{WIDTH}x{HEIGHT}",

@@ -3,6 +3,7 @@ and the whirlpool (Fig. 10) as a path on pins and phantom points."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import defaultdict
 
@@ -154,7 +155,7 @@ def test_schedule_invariants(pts, corners, model, soa, amp):
         assert p.onset_ms * 64 == int(p.onset_ms * 64)                 # 1/64 ms ticks
     for pulses in by_pin(s).values():                                  # one train at a time
         pulses.sort(key=lambda p: p.onset_ms)
-        assert all(a.offset_ms <= b.onset_ms for a, b in zip(pulses, pulses[1:]))
+        assert all(a.offset_ms <= b.onset_ms for a, b in itertools.pairwise(pulses))
     # every pin a point asks for is on at that point's onset
     on = [(p.row, p.col, p.onset_ms, p.offset_ms) for p in s.pulses]
     t = 0.0

@@ -199,7 +199,8 @@ def test_vectorised_sweeps_equal_the_sequential_algorithm(n):
     pts = np.c_[40 + 31 * np.sin(t), 45 + 31 * np.cos(t)].round().astype(np.int64)
     pts += rng.integers(-2, 3, pts.shape)
     order = list(range(0, n - (n % 2), 2)) + list(range(1, n, 2)) + ([n - 1] if n % 2 else [])
-    kw = dict(alpha=1.0, gamma=1.2, window=3, corner_curvature=0.25, corner_edge=10.0)
+    kw = {"alpha": 1.0, "gamma": 1.2, "window": 3, "corner_curvature": 0.25,
+          "corner_edge": 10.0}
     ref, betas = pts.copy(), [1.0] * n
     for sweeps in range(1, 6):
         ref, betas, _ = reference_sweep(edge, ref, betas, order=order, **kw)
@@ -283,7 +284,7 @@ def test_grid_path_keeps_a_sharp_apex_as_a_spike():
     """Two sides of an apex narrower than the grid step meet the same grid point: the
     path goes out to the apex and back rather than jumping."""
     pts = np.array([[0.0, 2.0], [4.0, 2.2], [4.0, 1.8]])
-    grid, corner, dropped, repeated = grid_path(pts, np.array([True, False, False]), 5, 5,
+    grid, corner, _, _ = grid_path(pts, np.array([True, False, False]), 5, 5,
                                                 closed=True, subdivisions=2)
     g = [tuple(x) for x in grid]
     assert max(_cheb(a, b) for a, b in zip(g, g[1:] + g[:1])) <= 0.5

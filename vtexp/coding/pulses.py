@@ -52,6 +52,7 @@ References
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 from collections import defaultdict
@@ -60,7 +61,15 @@ from typing import Annotated, Literal
 from pydantic import Field
 
 from ..errors import InputError
-from ..model import DeviceProfile, Model, Pattern, Pulse, PulseTrain, PulseTrainDrive, Schedule
+from ..model import (
+    DeviceProfile,
+    Model,
+    Pattern,
+    Pulse,
+    PulseTrain,
+    PulseTrainDrive,
+    Schedule,
+)
 
 PhantomModel = Literal["linear", "energy"]
 
@@ -206,7 +215,7 @@ def _resolve_pin(row: int, col: int,
     elementary interval (latest on ties); equal neighbours merged."""
     cuts = sorted({x for on, off, *_ in reqs for x in (on, off)})
     segments: list[list] = []          # [start, end, train]
-    for a, b in zip(cuts, cuts[1:]):
+    for a, b in itertools.pairwise(cuts):
         active = [r for r in reqs if r[0] <= a and r[1] >= b]
         if not active:
             continue

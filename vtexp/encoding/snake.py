@@ -74,7 +74,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from .._cv2 import cv2
-from ..model import Model, Pattern, PatternPoint
+from ..model import Model, Pattern
 from .phantom_grid import fit_to_array, grid_path
 
 
@@ -216,7 +216,7 @@ def resample_closed(points: np.ndarray, spacing: float) -> np.ndarray:
     seg = np.concatenate([pts[1:], pts[:1]]) - pts
     length = np.hypot(seg[:, 0], seg[:, 1])
     total = float(length.sum())
-    n = max(8, int(round(total / spacing)))
+    n = max(8, round(total / spacing))
     n += n % 2
     cum = np.concatenate([[0.0], np.cumsum(length)])
     s = np.arange(n) * (total / n)
@@ -478,9 +478,9 @@ def find_outline(gray: np.ndarray, **params) -> SnakeResult:
     init = initial_contour(smooth, spacing_px=p.spacing_px, min_area=p.min_area)
     if init is None:
         return SnakeResult(np.zeros((0, 2)), np.zeros(0, bool), f, 0,
-                           ["no object found: the image is uniform or the object is smaller "
-                            f"than min_area={p.min_area} of the image"])
-    # Corners first (step 4): found on the initial contour, refined at full resolution,
+                           [("no object found: the image is uniform or the object is "
+                             f"smaller than min_area={p.min_area} of the image")])
+    # Corners first (step 3): found on the initial contour, refined to sub-pixel precision,
     # and held by the nearest snake points, which then do not move and have β = 0.
     pts = init.copy()
     corner = np.zeros(len(pts), bool)

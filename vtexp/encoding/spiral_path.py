@@ -125,8 +125,8 @@ def spiral_path(gray: np.ndarray, rows: int, cols: int, **params) -> Pattern:
                                  min_pixels=p.min_pixels)
     if len(path) == 0:
         res = SnakeResult(np.zeros((0, 2)), np.zeros(0, bool), f, 0,
-                          ["no line found: the image is uniform or the line is shorter "
-                           f"than {p.min_pixels} pixels"])
+                          [("no line found: the image is uniform or the line is shorter "
+                            f"than {p.min_pixels} pixels")])
     else:
         full = path * float(f) + (f - 1) / 2.0
         centre = (full.min(axis=0) + full.max(axis=0)) / 2.0

@@ -72,7 +72,7 @@ def render_whirlpool(**params) -> np.ndarray:
     pts = spiral_points(**p.model_dump())
     # Anti-aliased at 1/16 pixel, like a camera's blur (as render_shape draws).
     cv.polylines(img, [np.round(pts * 16).astype(np.int32)], False, int(p.foreground),
-                 thickness=max(1, int(round(p.line_width_px))), lineType=cv.LINE_AA, shift=4)
+                 thickness=max(1, round(p.line_width_px)), lineType=cv.LINE_AA, shift=4)
     if p.noise_sd > 0:
         rng = np.random.default_rng(p.seed)
         img = np.clip(img + rng.normal(0, p.noise_sd, img.shape), 0, 255).astype(np.uint8)
