@@ -12,7 +12,7 @@ from .errors import InputError
 
 # The coding each pipeline's paper uses, unless --coding says otherwise.
 DEFAULT_CODING = {"height-contours": "contour-modes", "edge-trace": "sequential-trace",
-                  "snake-corners": "pulse-trains"}
+                  "snake-corners": "pulse-trains", "spiral-path": "pulse-trains"}
 
 
 def _params(items: list[str] | None, flag: str) -> dict:
@@ -126,7 +126,7 @@ def register(sub) -> None:
                    help="image file, 'camera[:N]', or GENERATOR:key=value,... "
                         "(e.g. surface:surface=ball, shape:shape=square)")
     s.add_argument("--pipeline", required=True,
-                   help="height-contours | edge-trace | snake-corners")
+                   help="height-contours | edge-trace | snake-corners | spiral-path")
     s.add_argument("--device", required=True, help="device profile name or YAML path")
     s.add_argument("--coding", help="coding protocol (default: the pipeline's paper's)")
     s.add_argument("--param", action="append", metavar="KEY=VALUE",

@@ -26,9 +26,9 @@ cells by contour following with chain codes. This module implements each step:
   object's thinned centre line instead of its edges.
 
   On the 6 x 8 vest, with the four study shapes at 18 rotations and 3 sizes,
-  ``region`` gives one closed loop in 214 of 216 cases, ``outline`` in 143
+  ``region`` gives one closed loop in 213 of 216 cases, ``outline`` in 145
   (an edge cut by the image border does not enclose a region) and ``edges``
-  in 116 (an edge grazing a row of cells lights two rows). docs/decisions.md.
+  in 118 (an edge grazing a row of cells lights two rows). docs/decisions.md.
 - :func:`follow_contour` — seed 001 §3.2, in full.
 """
 
