@@ -226,3 +226,14 @@ def test_device_clock_is_its_own():
     dt_h = (time.perf_counter() - t0h) * 1e6
     dt_d = fast.clock_us() - t0d
     assert dt_d == pytest.approx(dt_h * 1.05, rel=0.02)
+
+
+def test_a_frame_after_the_watchdog_deadline_is_too_late():
+    fw, clock = firmware()
+    hello(fw, wd=100)
+    fw.receive(wire.encode(SetFrame(1, ((3, Level(2)),)), 1))
+    clock.t = 1000 + 100_000 + 2_000           # no tick ran in time; a heartbeat arrives
+    out = decode_all(fw.receive(wire.encode(Heartbeat(), 2)))
+    assert out == [wire.Alarm(wire.AlarmCode.WATCHDOG, clock.t),
+                   Nak(2, NakReason.NO_SESSION)]
+    assert all(s.is_off for s in fw.outputs)

@@ -57,3 +57,61 @@ def test_offsets_before_onsets_at_the_same_time():
     first = [lv(row=r, col=c, dur=100) for r in range(2) for c in range(6)]
     second = [lv(row=r + 2, col=c, onset=100, dur=100) for r in range(2) for c in range(6)]
     check_schedule(sched(*first, *second), VEST)
+
+
+# --------------------------------------------------------------------------- across plays
+
+def test_cooling_wait_is_what_min_off_still_requires():
+    from vtexp.safety import cooling_wait_ms
+
+    s = sched(tr(row=0, col=0, onset=0), tr(row=1, col=1, onset=30), device="sma_5x5")
+    # (0, 0) went off 40 ms ago: it needs 60 ms more before its onset at 0 ms.
+    assert cooling_wait_ms(s, SMA, {(0, 0): 960.0}, now_ms=1000.0) == pytest.approx(60.0)
+    # (1, 1) went off 10 ms ago but starts 30 ms into the schedule: 60 ms more.
+    assert cooling_wait_ms(s, SMA, {(1, 1): 990.0}, now_ms=1000.0) == pytest.approx(60.0)
+    # rested long enough, or never driven, or another actuator: no wait
+    assert cooling_wait_ms(s, SMA, {(0, 0): 800.0}, now_ms=1000.0) == 0.0
+    assert cooling_wait_ms(s, SMA, {(4, 4): 999.0}, now_ms=1000.0) == 0.0
+    # motors need no cooling (min_off_ms 0)
+    assert cooling_wait_ms(sched(lv()), VEST, {(0, 0): 999.0}, now_ms=1000.0) == 0.0
+
+
+def test_a_replay_on_the_sim_waits_for_the_wire_to_cool():
+    from vtexp.devices import open_device
+
+    s = sched(tr(dur=300), device="sma_5x5")
+    with open_device("sim", SMA) as dev:
+        a = dev.play(s)
+        b = dev.play(s)
+    assert b.started_at_ms == pytest.approx(a.started_at_ms + 300 + SMA.limits.min_off_ms)
+    assert [e.kind for e in dev.history] == ["open", "play", "wait", "play", "all_off", "close"]
+
+
+# --------------------------------------------------------------------------- profiles
+
+@pytest.mark.parametrize("name", ["pad_20x20", "vest_6x8", "sma_5x5"])
+def test_shipped_profiles_state_geometry_and_every_limit(name):
+    p = DeviceProfile.load(name)
+    g = p.geometry
+    assert g.pitch_mm > 0 and g.body_site
+    assert g.orientation.row_0 and g.orientation.col_0 and g.orientation.source
+    lim = p.limits
+    assert lim.max_on_ms > 0 and lim.min_off_ms >= 0 and lim.max_simultaneous >= 1
+    if p.drive.kind == "levels":
+        assert lim.max_level is not None
+    else:
+        assert None not in (lim.max_amplitude_v, lim.max_frequency_hz, lim.max_pulse_width_ms)
+    assert g.index(g.rows - 1, g.cols - 1) == g.rows * g.cols - 1
+
+
+def test_a_profile_without_explicit_orientation_is_refused(tmp_path):
+    import yaml
+
+    from vtexp.errors import InputError
+
+    vest = DeviceProfile.load("vest_6x8").model_dump()
+    vest["geometry"]["orientation"] = "row 0 at the top"        # the old free-text form
+    f = tmp_path / "vest.yaml"
+    f.write_text(yaml.safe_dump(vest), encoding="utf-8")
+    with pytest.raises(InputError, match=r"geometry\.orientation"):
+        DeviceProfile.load(f)

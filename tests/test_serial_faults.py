@@ -31,6 +31,10 @@ VEST = DeviceProfile.load("vest_6x8")
 PAD = DeviceProfile.load("pad_20x20")
 SMA = DeviceProfile.load("sma_5x5")
 HEARTBEAT_MS = 200
+# Byte-fault tests use a long heartbeat: at these fault rates (about one frame in six
+# damaged) a run of lost replies could otherwise pass for a pulled cable, which is
+# what the cable tests below check, with the default period.
+NOISY = {"heartbeat_ms": 600}
 
 
 def sweep(n: int = 8, soa: float = 15, dur: float = 20) -> Schedule:
@@ -67,7 +71,7 @@ def emu():
 def test_damaged_bytes_are_detected_retried_counted_and_never_actuate_wrongly(fault, timing):
     s = sweep()
     plays = 10
-    dev = open_device("emulator", VEST, faults=fault, timing=timing)
+    dev = open_device("emulator", VEST, faults=fault, timing=timing, **NOISY)
     with dev:
         for _ in range(plays):
             rep = dev.play(s)
@@ -109,7 +113,8 @@ def test_lost_onset_events_are_fetched_again_not_guessed():
             sent.append(msg)
     s = sweep(12, soa=5, dur=5)
     dev = open_device("emulator", VEST, faults=Faults(drop_rate=0.005, direction="to_host",
-                                                        seed=5), emulator_options={"trace": tap})
+                                                        seed=5), emulator_options={"trace": tap},
+                      **NOISY)
     with dev:
         reports = [dev.play(s) for _ in range(8)]
         stats = dev.link_stats()
@@ -282,7 +287,7 @@ def test_sma_trains_survive_a_noisy_line():
     s = Schedule(device="sma_5x5", pulses=[
         Pulse(row=i % 5, col=(2 * i) % 5, onset_ms=20 * i, duration_ms=20, train=tr)
         for i in range(5)])
-    dev = open_device("emulator", SMA, faults=Faults(corrupt_rate=0.004, seed=2))
+    dev = open_device("emulator", SMA, faults=Faults(corrupt_rate=0.004, seed=2), **NOISY)
     with dev:
         for _ in range(4):
             dev.play(s)

@@ -81,7 +81,7 @@ class PtyEmulator:
     """
 
     def __init__(self, config: FirmwareConfig, *, faults: Faults | None = None,
-                 spin_us: int = 1500, clock_ppm: float = 0.0,
+                 spin_us: int = 3000, clock_ppm: float = 0.0,
                  trace: Callable[[str, object], None] | None = None):
         self.config = config
         self.spin_us = spin_us

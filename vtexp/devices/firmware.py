@@ -161,7 +161,9 @@ class Firmware:
     # -- I/O boundary -----------------------------------------------------------------------
     def receive(self, data: bytes) -> list[bytes]:
         """Bytes from the host in; frames to send out (replies, then any events)."""
-        out: list[bytes] = []
+        # The watchdog first: a frame that arrives after the deadline is too late to
+        # save the session (on a microcontroller the timer interrupt would have fired).
+        out: list[bytes] = self._watchdog()
         for item in self._reader.feed(data):
             if isinstance(item, wire.WireError):
                 self.counters.rx_bad += 1
@@ -177,14 +179,19 @@ class Firmware:
 
     def tick(self) -> list[bytes]:
         """Apply what is due now: schedule events, then the watchdog."""
-        out: list[bytes] = []
+        out = self._watchdog()
+        if out:
+            return out
         now = self.clock_us()
-        if self.session and now - self.last_rx_us > self.watchdog_ms * 1000:
-            return self._trip_watchdog()
         pb = self.play
         if pb is not None and (due := pb.next_due_us()) is not None and due <= now:
             out.extend(self._advance(pb, now))
         return out
+
+    def _watchdog(self) -> list[bytes]:
+        if self.session and self.clock_us() - self.last_rx_us > self.watchdog_ms * 1000:
+            return self._trip_watchdog()
+        return []
 
     def next_deadline_us(self) -> int | None:
         cands = []
@@ -356,11 +363,14 @@ class Firmware:
             return self._nak(seq, NakReason.BUSY, self.play.play_id)
         if self._uploaded is None or self._uploaded[0] != msg.play_id:
             return self._nak(seq, NakReason.NO_SCHEDULE, msg.play_id)
-        now = self.clock_us()
-        start = max(now, msg.at_us) if msg.at_us else now
         # The schedule stays loaded: triggering the same play_id again replays it.
-        self.play = Playback.of(msg.play_id, self._uploaded[1], start)
-        return Ack(seq, start)
+        pb = Playback.of(msg.play_id, self._uploaded[1], 0)
+        # The clock is read after the playback is prepared, so that preparing it does
+        # not make the first onset late.
+        now = self.clock_us()
+        pb.start_us = max(now, msg.at_us) if msg.at_us else now
+        self.play = pb
+        return Ack(seq, pb.start_us)
 
     def _get_onsets(self, seq: int, msg: GetOnsets) -> Message:
         pb = next((p for p in (self.play, self.last_play)

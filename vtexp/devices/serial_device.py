@@ -84,11 +84,12 @@ def change_groups(pulses: list[Pulse], cols: int, off: Setting
     return out
 
 
-def wait_until(t_perf: float, link: Link | None = None, spin_s: float = 0.002) -> None:
+def wait_until(t_perf: float, link: Link | None = None, spin_s: float = 0.005) -> None:
     """Sleep until shortly before ``t_perf`` (``time.perf_counter``), then spin to it.
 
     Sleeps in slices of at most 10 ms so that a lost ``link`` is raised at once,
-    not at the next frame.
+    not at the next frame. The last ``spin_s`` are spent awake: a thread woken
+    from sleep on a busy machine can start milliseconds late (``bench/timing.py``).
     """
     while True:
         if link is not None:
