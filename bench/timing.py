@@ -36,11 +36,18 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vtexp.devices import wire  # noqa: E402
-from vtexp.devices.serial_device import SerialDevice  # noqa: E402
-from vtexp.devices.wire import Ack, Level, SetFrame, SetFrameFull, UploadChunk, WirePulse  # noqa: E402
-from vtexp.model import DeviceProfile, Pulse, Schedule  # noqa: E402
-from vtexp.safety import check_schedule  # noqa: E402
+from vtexp.devices import wire
+from vtexp.devices.serial_device import SerialDevice
+from vtexp.devices.wire import (
+    Ack,
+    Level,
+    SetFrame,
+    SetFrameFull,
+    UploadChunk,
+    WirePulse,
+)
+from vtexp.model import DeviceProfile, Pulse, Schedule
+from vtexp.safety import check_schedule
 
 PROFILE = "pad_20x20"
 

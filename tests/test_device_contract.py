@@ -12,8 +12,8 @@ from __future__ import annotations
 import signal
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import pytest
 
@@ -124,9 +124,9 @@ def test_unsafe_schedule_never_reaches_the_device(backend):
     too_strong = Schedule(device="vest_6x8", pulses=[
         Pulse(row=0, col=0, onset_ms=0, duration_ms=50, level=1),
         Pulse(row=1, col=0, onset_ms=10, duration_ms=50, level=3)])
-    with backend.open(VEST) as dev:
-        with pytest.raises(UnsafeStimulus, match=r"row 1, col 0.*level 3 exceeds max_level 2"):
-            dev.play(too_strong)
+    with backend.open(VEST) as dev, \
+            pytest.raises(UnsafeStimulus, match=r"row 1, col 0.*level 3 exceeds max_level 2"):
+        dev.play(too_strong)
     assert backend.driven(dev) == []
 
 

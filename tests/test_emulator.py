@@ -13,9 +13,24 @@ import serial
 from vtexp.devices import wire
 from vtexp.devices.emulator import Faults, PtyEmulator
 from vtexp.devices.firmware import Firmware, FirmwareConfig
-from vtexp.devices.wire import (Ack, AllOff, Heartbeat, Hello, HelloReply, Level, Nak,
-                                NakReason, Onset, PlayDone, SetFrame, Train, Trigger, UploadBegin,
-                                UploadChunk, WirePulse)
+from vtexp.devices.wire import (
+    Ack,
+    AllOff,
+    Heartbeat,
+    Hello,
+    HelloReply,
+    Level,
+    Nak,
+    NakReason,
+    Onset,
+    PlayDone,
+    SetFrame,
+    Train,
+    Trigger,
+    UploadBegin,
+    UploadChunk,
+    WirePulse,
+)
 from vtexp.model import DeviceProfile
 
 ROOT = Path(__file__).resolve().parents[1]

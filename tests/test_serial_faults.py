@@ -13,6 +13,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -136,7 +137,6 @@ def long_vest_schedule() -> Schedule:
 def test_cable_pulled_mid_trial(emu, timing):
     dev = SerialDevice(VEST, emu.port, timing=timing, heartbeat_ms=HEARTBEAT_MS)
     with dev:
-        import threading
         pulled = []
 
         def pull():
@@ -163,14 +163,14 @@ def test_cable_pulled_mid_trial(emu, timing):
 def test_device_gone_silent_is_noticed_within_one_heartbeat(emu):
     dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS)
     with dev:
-        import threading
         muted = []
 
         def mute():
             muted.append(time.monotonic())
             emu.mute()
         threading.Timer(0.3, mute).start()
-        with pytest.raises(DeviceLost, match=r"nothing valid came back .* \(heartbeat period 200 ms\)"):
+        with pytest.raises(DeviceLost,
+                           match=r"nothing valid came back .* \(heartbeat period 200 ms\)"):
             dev.play(long_vest_schedule())
         assert time.monotonic() - muted[0] < HEARTBEAT_MS / 1000
     time.sleep(0.3)
@@ -248,24 +248,21 @@ def test_device_of_another_geometry_is_refused_at_handshake():
 
 def test_device_of_another_kind_is_refused_at_handshake():
     emu = PtyEmulator.for_profile(SMA, rows=8, cols=6)     # an 8x6 SMA panel is no vest
-    with emu:
-        with pytest.raises(DeviceError, match=r"8x6 sma_pin actuators driven by pulse_train, "
-                                              r"but profile 'vest_6x8'"):
-            SerialDevice(VEST, emu.port).open()
+    with emu, pytest.raises(DeviceError, match=r"8x6 sma_pin actuators driven by pulse_train, "
+                                               r"but profile 'vest_6x8'"):
+        SerialDevice(VEST, emu.port).open()
 
 
 def test_device_with_fewer_levels_than_the_profile_allows_is_refused():
     emu = PtyEmulator.for_profile(VEST, max_level=1)
-    with emu:
-        with pytest.raises(DeviceError, match="allows level 2, but the device .* up to 1 only"):
-            SerialDevice(VEST, emu.port).open()
+    with emu, pytest.raises(DeviceError, match="allows level 2, but the device .* up to 1 only"):
+        SerialDevice(VEST, emu.port).open()
 
 
 def test_sma_panel_weaker_than_its_profile_is_refused():
     emu = PtyEmulator.for_profile(SMA, max_width_us=1000)
-    with emu:
-        with pytest.raises(DeviceError, match=r"pulse width of 1.5 ms, but the device .* 1 ms"):
-            SerialDevice(SMA, emu.port).open()
+    with emu, pytest.raises(DeviceError, match=r"pulse width of 1.5 ms, but the device .* 1 ms"):
+        SerialDevice(SMA, emu.port).open()
 
 
 def test_a_port_with_no_vtexp_device_says_so():

@@ -14,10 +14,30 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vtexp.devices import wire
-from vtexp.devices.wire import (Ack, Alarm, AllOff, FrameReader, GetOnsets, Heartbeat, Hello,
-                                HelloReply, Level, Nak, Onset, OnsetsReply, PlayDone, SetFrame,
-                                SetFrameFull, Status, StatusReply, Train, Trigger, UploadBegin,
-                                UploadChunk, WirePulse)
+from vtexp.devices.wire import (
+    Ack,
+    Alarm,
+    AllOff,
+    FrameReader,
+    GetOnsets,
+    Heartbeat,
+    Hello,
+    HelloReply,
+    Level,
+    Nak,
+    Onset,
+    OnsetsReply,
+    PlayDone,
+    SetFrame,
+    SetFrameFull,
+    Status,
+    StatusReply,
+    Train,
+    Trigger,
+    UploadBegin,
+    UploadChunk,
+    WirePulse,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 VECTORS_PATH = ROOT / "protocols" / "wire" / "v1_vectors.json"

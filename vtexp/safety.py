@@ -13,7 +13,7 @@ it starts, rather than refusing a replay the participant asked for.
 from __future__ import annotations
 
 from collections import defaultdict
-from typing import Mapping
+from collections.abc import Mapping
 
 from .errors import UnsafeStimulus
 from .model import DeviceProfile, LevelDrive, Pulse, PulseTrainDrive, Schedule

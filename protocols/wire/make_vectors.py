@@ -29,13 +29,32 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 
-from vtexp.devices import wire  # noqa: E402
-from vtexp.devices.firmware import Firmware, FirmwareConfig  # noqa: E402
-from vtexp.devices.wire import (Ack, Alarm, AllOff, GetOnsets, Heartbeat, Hello,  # noqa: E402
-                                HelloReply, Level, Nak, Onset, OnsetsReply, PlayDone, SetFrame,
-                                SetFrameFull, Status, StatusReply, Train, Trigger, UploadBegin,
-                                UploadChunk, WirePulse)
-from vtexp.model import DeviceProfile  # noqa: E402
+from vtexp.devices import wire
+from vtexp.devices.firmware import Firmware, FirmwareConfig
+from vtexp.devices.wire import (
+    Ack,
+    Alarm,
+    AllOff,
+    GetOnsets,
+    Heartbeat,
+    Hello,
+    HelloReply,
+    Level,
+    Nak,
+    Onset,
+    OnsetsReply,
+    PlayDone,
+    SetFrame,
+    SetFrameFull,
+    Status,
+    StatusReply,
+    Train,
+    Trigger,
+    UploadBegin,
+    UploadChunk,
+    WirePulse,
+)
+from vtexp.model import DeviceProfile
 
 # Wikipedia, "Consistent Overhead Byte Stuffing", examples 1-11 (hex, decoded -> encoded).
 COBS = [
@@ -46,7 +65,7 @@ COBS = [
     ("11223344", "0511223344"),
     ("11000000", "02110101 01".replace(" ", "")),
     ("".join(f"{i:02x}" for i in range(1, 255)), "ff" + "".join(f"{i:02x}" for i in range(1, 255))),
-    ("".join(f"{i:02x}" for i in range(0, 255)),
+    ("".join(f"{i:02x}" for i in range(255)),
      "01ff" + "".join(f"{i:02x}" for i in range(1, 255))),
     ("".join(f"{i:02x}" for i in range(1, 256)),
      "ff" + "".join(f"{i:02x}" for i in range(1, 255)) + "02ff"),

@@ -67,4 +67,4 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["Device", "DeviceBase", "SimDevice", "open_device", "BACKENDS"]
+__all__ = ["BACKENDS", "Device", "DeviceBase", "SimDevice", "open_device"]

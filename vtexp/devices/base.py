@@ -5,6 +5,8 @@ from __future__ import annotations
 import time
 from typing import Protocol, runtime_checkable
 
+from typing_extensions import Self
+
 from ..model import DeviceInfo, DeviceProfile, PlayReport, Schedule
 from ..safety import check_schedule, cooling_wait_ms
 
@@ -32,7 +34,7 @@ class Device(Protocol):
 
     def close(self) -> None: ...
 
-    def __enter__(self) -> Device: ...
+    def __enter__(self) -> Self: ...
 
     def __exit__(self, *exc: object) -> None: ...
 

@@ -32,8 +32,11 @@ import threading
 import time
 import tty
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Callable, Literal
+from typing import Literal
+
+from typing_extensions import Self
 
 from ..errors import DeviceError
 from ..model import DeviceProfile
@@ -145,7 +148,7 @@ class PtyEmulator:
             self._thread = None
         self._close_fds()
 
-    def __enter__(self) -> PtyEmulator:
+    def __enter__(self) -> Self:
         if self._thread is None:
             self.start()
         return self
@@ -316,4 +319,4 @@ def check_alive(emu: PtyEmulator) -> None:
         raise DeviceError(f"the emulator on {emu.port} crashed: {emu.error!r}")
 
 
-__all__ = ["Faults", "FaultCounts", "PtyEmulator", "FirmwareConfig", "check_alive"]
+__all__ = ["FaultCounts", "Faults", "FirmwareConfig", "PtyEmulator", "check_alive"]

@@ -26,16 +26,41 @@ Behaviour that the host relies on (``docs/protocol.md``):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 from .. import __version__
 from ..model import DeviceProfile, LevelDrive
 from . import wire
-from .wire import (Ack, Alarm, AlarmCode, AllOff, DeviceState, DoneReason, GetOnsets, Heartbeat,
-                   Hello, HelloReply, Level, Message, Nak, NakReason, Onset, OnsetsReply,
-                   PlayDone, SetFrame, SetFrameFull, Setting, Status, StatusReply, Train, Trigger,
-                   UploadBegin, UploadChunk, WirePulse)
+from .wire import (
+    Ack,
+    Alarm,
+    AlarmCode,
+    AllOff,
+    DeviceState,
+    DoneReason,
+    GetOnsets,
+    Heartbeat,
+    Hello,
+    HelloReply,
+    Level,
+    Message,
+    Nak,
+    NakReason,
+    Onset,
+    OnsetsReply,
+    PlayDone,
+    SetFrame,
+    SetFrameFull,
+    Setting,
+    Status,
+    StatusReply,
+    Train,
+    Trigger,
+    UploadBegin,
+    UploadChunk,
+    WirePulse,
+)
 
 
 @dataclass(frozen=True)
@@ -65,10 +90,10 @@ class FirmwareConfig:
         the highest amplitude, frequency and pulse width); the profile's safety
         limits are the host's business (``vtexp.safety``).
         """
-        kw: dict = dict(rows=profile.rows, cols=profile.cols,
-                        actuator=wire.ACTUATOR_KINDS[profile.actuator],
-                        drive=wire.DRIVE_KINDS[profile.drive.kind],
-                        device_id=f"emulated {profile.name}")
+        kw: dict = {"rows": profile.rows, "cols": profile.cols,
+                    "actuator": wire.ACTUATOR_KINDS[profile.actuator],
+                    "drive": wire.DRIVE_KINDS[profile.drive.kind],
+                    "device_id": f"emulated {profile.name}"}
         d = profile.drive
         if isinstance(d, LevelDrive):
             kw["max_level"] = len(d.levels) - 1
@@ -279,7 +304,7 @@ class Firmware:
         if msg.protocol < 1:
             return self._nak(seq, NakReason.UNSUPPORTED_PROTOCOL, wire.PROTOCOL_VERSION)
         self._all_off("hello", DoneReason.ALL_OFF, events)
-        clamp = lambda v: max(self.cfg.min_watchdog_ms, min(self.cfg.max_watchdog_ms, v))  # noqa: E731
+        clamp = lambda v: max(self.cfg.min_watchdog_ms, min(self.cfg.max_watchdog_ms, v))
         self.heartbeat_ms = clamp(msg.heartbeat_ms)
         self.watchdog_ms = clamp(msg.watchdog_ms)
         self.session = True

@@ -13,7 +13,8 @@ import os
 import threading
 import time
 import tty
-from typing import Any, Callable, TextIO
+from collections.abc import Callable
+from typing import Any, TextIO
 
 from ..errors import DeviceError
 from . import wire

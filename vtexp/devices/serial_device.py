@@ -24,18 +24,47 @@ a :class:`~vtexp.devices.emulator.PtyEmulator` that it starts itself.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 from ..errors import DeviceError, InputError
-from ..model import (DeviceInfo, DeviceProfile, LevelDrive, PlayedPulse, PlayReport, Pulse,
-                     Schedule)
+from ..model import (
+    DeviceInfo,
+    DeviceProfile,
+    LevelDrive,
+    PlayedPulse,
+    PlayReport,
+    Pulse,
+    Schedule,
+)
 from . import wire
 from .base import DeviceBase
-from .link import DeviceLost, DeviceRefused, Link
-from .wire import (Ack, AllOff, DoneReason, GetOnsets, Hello, HelloReply, Level, Message,
-                   NakReason, Onset, OnsetsReply, PlayDone, SetFrame, SetFrameFull, Setting,
-                   Status, StatusReply, Train, Trigger, UploadBegin, UploadChunk, WirePulse)
+from .link import DeviceLost, Link
+from .wire import (
+    Ack,
+    AllOff,
+    DoneReason,
+    GetOnsets,
+    Hello,
+    HelloReply,
+    Level,
+    Message,
+    NakReason,
+    Onset,
+    OnsetsReply,
+    PlayDone,
+    SetFrame,
+    SetFrameFull,
+    Setting,
+    Status,
+    StatusReply,
+    Train,
+    Trigger,
+    UploadBegin,
+    UploadChunk,
+    WirePulse,
+)
 
 Timing = Literal["device", "host"]
 ACTUATOR_NAMES = {v: k for k, v in wire.ACTUATOR_KINDS.items()}
@@ -163,7 +192,7 @@ class SerialDevice(DeviceBase):
 
     # -- open / close -----------------------------------------------------------------------
     def _open(self) -> DeviceInfo:
-        import serial   # pyserial; imported here so that 'vtexp --help' stays fast
+        import serial  # pyserial; imported here so that 'vtexp --help' stays fast
 
         self._lost_reported = False
         try:

@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import struct
 import zlib
+from collections.abc import Iterable
 from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar, Iterable, Union
+from typing import Any, ClassVar
 
 PROTOCOL_VERSION = 1
 PROTOCOL_NAME = f"vtexp-wire/{PROTOCOL_VERSION}"
@@ -31,7 +32,7 @@ DELIMITER = b"\x00"
 HEADER = struct.Struct("<BBB")          # version, type, seq
 CRC = struct.Struct("<I")
 MIN_FRAME = HEADER.size + CRC.size       # decoded bytes of a frame with an empty payload
-MAX_FRAME = 4096                          # decoded bytes; longer runs without a delimiter are garbage
+MAX_FRAME = 4096          # decoded bytes; a longer run without a delimiter is garbage
 NOT_PLAYED = 0xFFFF_FFFF_FFFF_FFFF        # onset time of a pulse that has not been played
 
 # Actuator kinds and drive kinds as numbered on the wire (HelloReply).
@@ -175,8 +176,8 @@ class Train:
         return cls(*struct.unpack("<HHH", b))
 
 
-Setting = Union[Level, Train]
-SETTINGS: dict[int, type[Level] | type[Train]] = {DRIVE_LEVEL: Level, DRIVE_TRAIN: Train}
+Setting = Level | Train
+SETTINGS: dict[int, type[Level | Train]] = {DRIVE_LEVEL: Level, DRIVE_TRAIN: Train}
 OFF: dict[int, Setting] = {DRIVE_LEVEL: Level(0), DRIVE_TRAIN: Train(0, 0, 0)}
 
 
@@ -391,7 +392,8 @@ class SetFrameFull(Message):
             raise PayloadError(f"SET_FRAME_FULL: unknown drive kind {drive}")
         if r.rest() % scls.SIZE:
             raise PayloadError("SET_FRAME_FULL: payload is not a whole number of settings")
-        return cls(drive, tuple(scls.unpack(r.raw(scls.SIZE)) for _ in range(r.rest() // scls.SIZE)))
+        n = r.rest() // scls.SIZE
+        return cls(drive, tuple(scls.unpack(r.raw(scls.SIZE)) for _ in range(n)))
 
 
 @dataclass(frozen=True)
