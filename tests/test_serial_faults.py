@@ -279,6 +279,12 @@ def test_a_missing_port_says_where_to_look():
         open_device("serial:/dev/does-not-exist", VEST).open()
 
 
+def test_a_port_in_use_by_another_program_is_refused(emu):
+    with SerialDevice(VEST, emu.port), \
+            pytest.raises(DeviceError, match="another program .* has it open"):
+        SerialDevice(VEST, emu.port).open()
+
+
 def test_sma_trains_survive_a_noisy_line():
     tr = PulseTrain(amplitude_v=2.0, frequency_hz=25, pulse_width_ms=1.5)
     s = Schedule(device="sma_5x5", pulses=[

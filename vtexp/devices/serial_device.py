@@ -196,11 +196,15 @@ class SerialDevice(DeviceBase):
 
         self._lost_reported = False
         try:
+            # exclusive: two programs driving one array would interleave their frames
             port = serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=0.01,
-                                         write_timeout=2.0)
+                                         write_timeout=2.0, exclusive=True)
         except (serial.SerialException, ValueError, OSError) as e:
+            hint = ("another program (another vtexp?) has it open"
+                    if "lock" in str(e).lower() else
+                    "'vtexp device list' shows the ports found")
             raise DeviceError(f"cannot open the serial port {self.port!r}: {e}. "
-                              "'vtexp device list' shows the ports found.") from None
+                              f"{hint}.") from None
         try:
             port.reset_input_buffer()
         except Exception:
