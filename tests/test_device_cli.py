@@ -95,7 +95,7 @@ def test_emulate_prints_its_port_and_serves_until_stopped():
         if p.poll() is None:
             p.kill()
     assert p.returncode == 0, err
-    assert "emulator stopped:" in out and "0 bad" in out
+    assert "emulator stopped:" in out and "0 bad" in out and "0 watchdog trips" in out
 
 
 def test_emulate_can_pretend_to_be_another_geometry():

@@ -191,6 +191,15 @@ def test_after_a_pulled_cable_the_session_can_resume_on_the_replugged_device(emu
     assert len(rep.pulses) == 3
 
 
+def test_closing_says_goodbye_and_the_device_raises_no_alarm(emu):
+    with SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS) as dev:
+        dev.play(sweep(2))
+    time.sleep(2 * HEARTBEAT_MS / 1000)       # longer than its watchdog
+    assert emu.all_outputs_off() and not emu.firmware.session
+    assert emu.firmware.counters.watchdog_trips == 0 and emu.firmware.alarms == []
+    assert emu.actuations()[-1].cause in ("play", "bye")
+
+
 def test_a_lost_device_is_reported_even_if_the_first_call_is_all_off(emu):
     dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS)
     dev.open()

@@ -35,6 +35,7 @@ from vtexp.devices.wire import (
     Ack,
     Alarm,
     AllOff,
+    Bye,
     GetOnsets,
     Heartbeat,
     Hello,
@@ -89,6 +90,7 @@ FRAMES = [
     ("trigger_at", 9, Trigger(7, 1_234_567_890)),
     ("status", 10, Status()),
     ("get_onsets", 11, GetOnsets(7, 0, 2)),
+    ("bye", 12, Bye()),
     ("hello_reply", 0, HelloReply(0, 1, 200, 200, 8, 6, 2, 1, 2, 0, 0, 0, 4096, 1024, 1000,
                                   "vtexp-emulator 0.1.0", "emulated vest_6x8")),
     ("ack", 1, Ack(1, 5000)),
@@ -221,6 +223,13 @@ def conversations() -> list[dict]:
         (360_000, e(Heartbeat(), 3)),             # late host: NO_SESSION
         (370_000, e(AllOff(), 4)),                # ALL_OFF works without a session
     ], "silence longer than watchdog_ms turns everything off and ends the session")
+    run("bye", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (2000, e(SetFrame(1, ((9, Level(1)),)), 1)),
+        (3000, e(Bye(), 2)),                      # everything off, session over
+        (500_000, None),                          # long silence: no watchdog alarm
+        (501_000, e(Heartbeat(), 3)),             # NO_SESSION until the next HELLO
+    ], "a host that says BYE leaves the device off and idle, without a watchdog alarm")
     return out
 
 

@@ -18,7 +18,8 @@ Behaviour that the host relies on (``docs/protocol.md``):
   changes (a refused frame changes nothing);
 - schedules play from the device's own clock; each onset is stamped with the
   clock read after the outputs changed and reported in an ``ONSET`` event;
-- ``ALL_OFF`` works at any time, with or without a session;
+- ``ALL_OFF`` works at any time, with or without a session; ``BYE`` turns
+  everything off and ends the session without an alarm;
 - the watchdog: when no valid frame has arrived for ``watchdog_ms`` during a
   session, every output goes off, any play stops, the session ends (the host
   must say ``HELLO`` again) and an ``ALARM`` is sent.
@@ -37,6 +38,7 @@ from .wire import (
     Alarm,
     AlarmCode,
     AllOff,
+    Bye,
     DeviceState,
     DoneReason,
     GetOnsets,
@@ -277,6 +279,10 @@ class Firmware:
             return self._hello(seq, msg, events)
         if isinstance(msg, AllOff):                    # always allowed: abort means off
             t = self._all_off("all_off", DoneReason.ALL_OFF, events)
+            return Ack(seq, t)
+        if isinstance(msg, Bye):                       # a clean goodbye: off, session over
+            t = self._all_off("bye", DoneReason.ALL_OFF, events)
+            self.session = False
             return Ack(seq, t)
         if isinstance(msg, Status):
             pb = self.play or self.last_play

@@ -290,8 +290,18 @@ class SerialDevice(DeviceBase):
                                       f"{has / scale:g} {unit} only")
 
     def _close(self) -> None:
-        if self._link is not None:
-            self._link.close()
+        link = self._link
+        if link is None:
+            return
+        try:
+            if link.lost is None:
+                # Say goodbye, so that the device ends the session now rather than
+                # raising a watchdog alarm for a host that merely left.
+                link.request(wire.Bye(), retries=2)
+        except DeviceError:
+            pass        # then its watchdog ends the session; everything is off already
+        finally:
+            link.close()
             self._link = None
 
     # -- loss -------------------------------------------------------------------------------

@@ -503,6 +503,22 @@ class Status(Message):
 
 
 @dataclass(frozen=True)
+class Bye(Message):
+    """The host is leaving: everything off and the session ends, without a watchdog alarm."""
+
+    TYPE = 0x0B
+    REQUEST = True
+
+    def pack(self) -> bytes:
+        return b""
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> Bye:
+        _Reader(payload, "BYE").end()
+        return cls()
+
+
+@dataclass(frozen=True)
 class GetOnsets(Message):
     """Ask again for onsets the host missed (their ONSET events were lost)."""
 
@@ -767,7 +783,7 @@ class Alarm(Message):
 
 MESSAGES: dict[int, type[Message]] = {
     cls.TYPE: cls for cls in (Hello, Heartbeat, AllOff, SetFrame, SetFrameFull, UploadBegin,
-                              UploadChunk, Trigger, Status, GetOnsets, HelloReply, Ack, Nak,
+                              UploadChunk, Trigger, Status, GetOnsets, Bye, HelloReply, Ack, Nak,
                               StatusReply, OnsetsReply, Onset, PlayDone, Alarm)}
 MESSAGES_BY_NAME: dict[str, type[Message]] = {c.__name__: c for c in MESSAGES.values()}
 _PLAIN: dict[str, type] = {"Level": Level, "Train": Train, "WirePulse": WirePulse}
