@@ -197,46 +197,35 @@ def longest_shared_run(pattern: Pattern, model: str = "energy") -> int:
     return best
 
 
-def safe_soa_ms(pattern: Pattern, **params) -> float | None:
-    """The longest SOA, in 1 ms steps from 200 ms down, whose schedule passes sma_5x5."""
-    for soa in range(200, 0, -1):
-        try:
-            check_schedule(pulse_trains(pattern, SMA, soa_ms=soa, **params), SMA)
-            return soa
-        except UnsafeStimulus:
-            continue
-    return None
-
-
 @pytest.mark.parametrize("shape", ["circle", "square", "rectangle", "triangle"])
 def test_study_shapes_pass_safety_on_the_panel(shape):
-    # The pins alone (seed 002 Fig. 8) with Table 4's corners and Tactile Brush's SOA.
+    # Pins alone (seed 002 Fig. 8) and with phantom points (Fig. 9), Table 4's corners,
+    # Tactile Brush's SOA: the paper's stimuli are within sma_5x5's limits.
     pat = snake_corners(render_shape(shape=shape), 5, 5, subdivisions=1)
     assert longest_shared_run(pat) == 1
     check_schedule(pulse_trains(pat, SMA), SMA)
-    # With phantom points m consecutive points share a pin, which is then on for at
-    # least (m - 1) SOA + 200 ms without a pause: only a shorter SOA passes.
     pat = snake_corners(render_shape(shape=shape), 5, 5)
     m = longest_shared_run(pat)
-    soa = safe_soa_ms(pat, corner_emphasis=False)
-    assert m >= 3 and soa is not None
-    assert soa <= (SMA.limits.max_on_ms - 200) / (m - 1) < tactile_brush_soa_ms(200)
+    assert m >= 3
+    # With phantom points m consecutive points share a pin, which is then on for
+    # (m - 1) SOA + 200 ms without a pause; the profile's max_on_ms allows it.
+    assert (m - 1) * tactile_brush_soa_ms(200) + 200 <= SMA.limits.max_on_ms
+    check_schedule(pulse_trains(pat, SMA), SMA)
 
 
 def test_what_the_panel_limits_refuse():
-    """Seed 002's own parameters with phantom points break sma_5x5's max_on_ms: a pin shared
-    by three consecutive points is on for 2 SOA + 200 ms without a pause (422.6 ms with
-    Tactile Brush's SOA), and a 400 ms corner always overlaps its neighbours. The check
-    refuses them, naming the limit."""
+    """The limits still bite: a pin shared by three consecutive points is on for
+    2 SOA + L without a pause, so a long vibration time (L = 700 ms at Tactile Brush's
+    SOA) exceeds max_on_ms; a panel rated for less than the paper's 2 V refuses it."""
     pat = snake_corners(render_shape(shape="circle"), 5, 5)
     assert longest_shared_run(pat) == 3
-    expected = 2 * tactile_brush_soa_ms(200) + 200
+    expected = 2 * tactile_brush_soa_ms(700) + 700
     assert expected > SMA.limits.max_on_ms
     with pytest.raises(UnsafeStimulus, match=f"on for {expected:.1f} ms.*max_on_ms"):
-        check_schedule(pulse_trains(pat, SMA, corner_emphasis=False), SMA)
-    square = snake_corners(render_shape(shape="square"), 5, 5)
-    with pytest.raises(UnsafeStimulus, match="max_on_ms"):
-        check_schedule(pulse_trains(square, SMA, soa_ms=20), SMA)
+        check_schedule(pulse_trains(pat, SMA, corner_emphasis=False, vibration_ms=700), SMA)
+    weak = SMA.model_copy(update={"limits": SMA.limits.model_copy(update={"max_amplitude_v": 1.0})})
+    with pytest.raises(UnsafeStimulus, match="max_amplitude_v"):
+        check_schedule(pulse_trains(pat, SMA, corner_emphasis=False), weak)
 
 
 # --------------------------------------------------------------------------- whirlpool
@@ -324,21 +313,19 @@ def test_whirlpool_direction_and_bad_input():
 
 
 def test_whirlpool_schedule_on_the_panel():
-    """The whirlpool as seed 002 §4 plays it, by apparent movement along the path. On the
-    pins alone it passes sma_5x5's limits with Table 3 and Tactile Brush's SOA. With
-    phantom points pins take part in several consecutive points: a 2-turn whirlpool
-    passes only with an SOA shorter than Tactile Brush's; a 3-turn one (seed 002: with
-    phantom points the participants felt more than three turns) passes at no SOA from
-    1 to 200 ms at L = 200 ms — the inner turns keep the centre pins on beyond
-    max_on_ms, or back on before min_off_ms. This documents a conflict between the
-    paper's stimulus and the profile's limits; it is not a coding choice."""
-    img = render_whirlpool(turns=2, inner=0.3)
-    pins_only = spiral_path(img, 5, 5, subdivisions=1)
-    check_schedule(pulse_trains(pins_only, SMA), SMA)
-    pat = spiral_path(img, 5, 5)
-    soa = safe_soa_ms(pat)
-    assert soa is not None and soa < tactile_brush_soa_ms(200)
-    with pytest.raises(UnsafeStimulus, match="max_on_ms"):
-        check_schedule(pulse_trains(pat, SMA), SMA)
-    three = spiral_path(render_whirlpool(turns=3, inner=0.3), 5, 5)
-    assert safe_soa_ms(three) is None
+    """The whirlpool as seed 002 §4 plays it, by apparent movement along the path, with
+    Table 3 and Tactile Brush's SOA: on the pins alone and with phantom points, 2 to 4
+    turns, within sma_5x5's limits. With phantom points the centre pins take part in
+    several consecutive points; the longest train on one pin and the shortest rest
+    between two are what the profile's max_on_ms and min_off_ms were set from."""
+    for turns in (2, 3, 4):
+        img = render_whirlpool(turns=turns, inner=0.3)
+        check_schedule(pulse_trains(spiral_path(img, 5, 5, subdivisions=1), SMA), SMA)
+        check_schedule(pulse_trains(spiral_path(img, 5, 5), SMA), SMA)
+    # Played much faster, a pin comes back before it has rested (SOA 30 ms), or too
+    # many pins overlap for the power budget (SOA 20 ms).
+    four = spiral_path(render_whirlpool(turns=4, inner=0.3), 5, 5)
+    with pytest.raises(UnsafeStimulus, match="below min_off_ms 20"):
+        check_schedule(pulse_trains(four, SMA, soa_ms=30), SMA)
+    with pytest.raises(UnsafeStimulus, match="above max_simultaneous 8"):
+        check_schedule(pulse_trains(four, SMA, soa_ms=20), SMA)

@@ -40,9 +40,9 @@ def test_a_safe_schedule_passes():
     (sched(tr(amp=3.0), device="sma_5x5"), SMA, r"amplitude 3.0 V exceeds max_amplitude_v 2.0"),
     (sched(tr(hz=80), device="sma_5x5"), SMA, r"frequency 80.0 Hz exceeds max_frequency_hz 50"),
     (sched(tr(width=2.0), device="sma_5x5"), SMA, r"pulse width 2.0 ms exceeds max_pulse_width"),
-    (sched(tr(dur=500), device="sma_5x5"), SMA, r"above max_on_ms 400"),
-    (sched(tr(dur=200), tr(onset=250, dur=100), device="sma_5x5"), SMA,
-     r"at 250.0 ms: only 50.0 ms off.*min_off_ms 100"),
+    (sched(tr(dur=1200), device="sma_5x5"), SMA, r"above max_on_ms 1000"),
+    (sched(tr(dur=200), tr(onset=210, dur=100), device="sma_5x5"), SMA,
+     r"at 210.0 ms: only 10.0 ms off.*min_off_ms 20"),
     (sched(lv(), device="sma_5x5"), SMA, r"driven by pulse trains, but the pulse has a level"),
     (sched(tr(), device="vest_6x8"), VEST, r"driven by levels, but the pulse has a pulse train"),
     (sched(lv(), device="pad_20x20"), VEST, r"coded for device 'pad_20x20'"),
@@ -64,13 +64,14 @@ def test_offsets_before_onsets_at_the_same_time():
 def test_cooling_wait_is_what_min_off_still_requires():
     from vtexp.safety import cooling_wait_ms
 
-    s = sched(tr(row=0, col=0, onset=0), tr(row=1, col=1, onset=30), device="sma_5x5")
-    # (0, 0) went off 40 ms ago: it needs 60 ms more before its onset at 0 ms.
-    assert cooling_wait_ms(s, SMA, {(0, 0): 960.0}, now_ms=1000.0) == pytest.approx(60.0)
-    # (1, 1) went off 10 ms ago but starts 30 ms into the schedule: 60 ms more.
-    assert cooling_wait_ms(s, SMA, {(1, 1): 990.0}, now_ms=1000.0) == pytest.approx(60.0)
+    rest = SMA.limits.min_off_ms                     # 20 ms
+    s = sched(tr(row=0, col=0, onset=0), tr(row=1, col=1, onset=5), device="sma_5x5")
+    # (0, 0) went off 8 ms ago: it needs rest - 8 ms more before its onset at 0 ms.
+    assert cooling_wait_ms(s, SMA, {(0, 0): 992.0}, now_ms=1000.0) == pytest.approx(rest - 8)
+    # (1, 1) went off 1 ms ago but starts 5 ms into the schedule: rest - 6 ms more.
+    assert cooling_wait_ms(s, SMA, {(1, 1): 999.0}, now_ms=1000.0) == pytest.approx(rest - 6)
     # rested long enough, or never driven, or another actuator: no wait
-    assert cooling_wait_ms(s, SMA, {(0, 0): 800.0}, now_ms=1000.0) == 0.0
+    assert cooling_wait_ms(s, SMA, {(0, 0): 1000.0 - rest}, now_ms=1000.0) == 0.0
     assert cooling_wait_ms(s, SMA, {(4, 4): 999.0}, now_ms=1000.0) == 0.0
     # motors need no cooling (min_off_ms 0)
     assert cooling_wait_ms(sched(lv()), VEST, {(0, 0): 999.0}, now_ms=1000.0) == 0.0
