@@ -215,23 +215,34 @@ def shape_from_shading(e: np.ndarray, mask: np.ndarray, *, min_brightness: float
     inside = m.astype(np.float32)
     z = np.where(m, np.float32(1e9), np.float32(0.0)).astype(np.float32)
     limit = max_iterations or (m.shape[0] + m.shape[1])
+    # Work arrays allocated once: the loop runs tens of times on a few thousand pixels,
+    # where allocation would cost as much as the arithmetic.
+    a, b, d2, root, one = (np.empty_like(z) for _ in range(5))
+    new = np.empty_like(z)
     for it in range(limit):
         # Lower neighbour left/right (a) and up/down (b); outside the box is background.
-        a = cv.erode(z, _ROW, borderType=cv.BORDER_CONSTANT, borderValue=0)
-        b = cv.erode(z, _COL, borderType=cv.BORDER_CONSTANT, borderValue=0)
-        d = a - b
-        d2 = d * d
+        cv.erode(z, _ROW, dst=a, borderType=cv.BORDER_CONSTANT, borderValue=0)
+        cv.erode(z, _COL, dst=b, borderType=cv.BORDER_CONSTANT, borderValue=0)
+        np.subtract(a, b, out=d2)
+        np.multiply(d2, d2, out=d2)
         # Both neighbours upwind: the root of (Z-a)^2 + (Z-b)^2 = slope^2 ...
-        both = (a + b + np.sqrt(np.maximum(two_s2 - d2, 0.0))) * 0.5
+        np.subtract(two_s2, d2, out=root)
+        np.maximum(root, 0.0, out=root)
+        np.sqrt(root, out=root)
+        np.add(root, a, out=root)
+        np.add(root, b, out=root)
+        root *= 0.5
         # ... unless they differ by more than the slope: then only the lower one counts.
-        new = np.where(d2 >= slope2, np.minimum(a, b) + slope, both)
-        np.minimum(z, new, out=new)
+        np.minimum(a, b, out=one)
+        one += slope
+        np.copyto(root, one, where=d2 >= slope2)
+        np.minimum(z, root, out=new)
         new *= inside
         # At the fixed point an iteration changes nothing, so testing for it only
         # every fourth iteration costs at most three idle iterations.
         if it % 4 == 3 and np.array_equal(new, z):
             break
-        z = new
+        z, new = new, z
     z[z >= 1e9] = 0.0          # pixels never reached (cannot happen for a connected object)
     out[r0:r1, c0:c1] = z
     return out
@@ -400,8 +411,13 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
         raise ValueError("expected a 2-D grayscale image")
     m, n = g.shape
     lr, lc = lattice_shape(m, n, rows, cols)
-    # Working resolution: cells_per_motor pixels per motor of the lattice.
-    wh = (max(lc * cells_per_motor, 1), max(lr * cells_per_motor, 1))
+    # Working resolution: at least cells_per_motor pixels per motor of the lattice,
+    # reached by an integer reduction factor f (area averaging over f x f blocks is
+    # OpenCV's fast path; the last m % f rows and n % f columns are left out).
+    f = max(1, min(n // max(lc * cells_per_motor, 1), m // max(lr * cells_per_motor, 1)))
+    if f > 1:
+        g = g[:m - m % f, :n - n % f]
+    wh = (g.shape[1] // f, g.shape[0] // f)
     e, mask = reflectance(g, size=wh, albedo=albedo, ambient=ambient)
     z = shape_from_shading(e, mask, min_brightness=min_brightness)
     h = normalise_height(z, mask)
