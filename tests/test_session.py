@@ -228,3 +228,63 @@ def test_sigterm_aborts_cleanly_and_marks_the_session(tmp_path):
     assert meta["status"] == "aborted" and meta["checksums"]
     assert read_session(paths.dir).warnings == [f"{paths.dir}: session aborted (interrupted by "
                                                 "the experimenter)"]
+
+
+class _FlakyDevice:
+    """Wraps the sim so that chosen plays fail as a pulled cable does."""
+
+    def __init__(self, profile, fail_on: set[int]):
+        from vtexp.devices import open_device as _open
+        self.dev = _open("sim", profile)
+        self.fail_on = fail_on
+        self.calls = 0
+        self.reopened = 0
+        inner = self.dev._play
+
+        def play(schedule):
+            self.calls += 1
+            if self.calls in self.fail_on:
+                from vtexp.errors import DeviceError
+                raise DeviceError("lost contact with the tactile device (test)")
+            return inner(schedule)
+        self.dev._play = play
+        close = self.dev._close
+
+        def counting_close():
+            self.reopened += 1
+            close()
+        self.dev._close = counting_close
+
+
+@pytest.mark.parametrize("choice", ["retry", "skip", "abort"])
+def test_a_device_fault_pauses_the_session_for_the_experimenter(tmp_path, minimal_yaml, choice):
+    lx = load_experiment(write_experiment(tmp_path, minimal_yaml))
+    flaky = _FlakyDevice(DeviceProfile.load("vest_6x8"), fail_on={2})
+    asked = []
+
+    def handler(error, trial):
+        asked.append((trial.number, str(error)))
+        assert flaky.dev.state.max() == 0          # everything is off while paused
+        return choice
+    responder = make_responder("scripted:correct", "01", 1)
+    run = lambda: run_session(lx, "01", 1, flaky.dev, responder, tmp_path / "d",  # noqa: E731
+                              on_device_error=handler)
+    if choice == "abort":
+        with pytest.raises(Exception, match="lost contact"):
+            run()
+    else:
+        res = run()
+        assert res.status == "completed"
+    assert asked == [(2, "lost contact with the tactile device (test)")]
+    d = tmp_path / "d" / "mini" / "sub-01" / "ses-1"
+    rows = read_session(d).trials
+    meta = json.loads((d / "session.json").read_text())
+    if choice == "retry":
+        assert list(rows["status"]) == ["ok"] * 4 and flaky.reopened >= 1
+        assert rows["correct"].sum() == 4
+    elif choice == "skip":
+        assert list(rows["status"]) == ["ok", "device_error", "ok", "ok"]
+        assert rows["answer"].isna().sum() == 1 and rows["correct"].isna().sum() == 1
+    else:
+        assert meta["status"] == "failed" and "lost contact" in meta["reason"]
+        assert len(rows) == 1

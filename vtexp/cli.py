@@ -115,7 +115,23 @@ def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet,
     device = open_device(device_spec, profile)
     with device:
         return run_session(lx, participant, session, device, responder, data, conditions=conds,
-                           sinks=(_Progress(quiet),), command=sys.argv)
+                           sinks=(_Progress(quiet),), command=sys.argv,
+                           on_device_error=_ask_experimenter if sys.stdin.isatty() else None)
+
+
+def _ask_experimenter(error, trial) -> str:
+    """The session pauses on a device fault until the experimenter chooses what to do."""
+    print(f"\nThe device failed during trial {trial.number} ({trial.condition.label}):\n"
+          f"  {error}\nEvery actuator is off. The session is paused.", file=sys.stderr)
+    while True:
+        try:
+            answer = input("[r]etry the trial (reconnect first), [s]kip it, or [a]bort the "
+                           "session? ").strip().lower()
+        except EOFError:
+            return "abort"
+        for choice in ("retry", "skip", "abort"):
+            if answer in (choice, choice[0]):
+                return choice
 
 
 def cmd_run(args) -> int:

@@ -24,13 +24,13 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from importlib import metadata
 from pathlib import Path
-from typing import Protocol
+from typing import Callable, Protocol
 
 from . import __version__
 from .compile import Condition, compile_conditions
 from .design import Trial, trial_list
 from .devices.base import DeviceBase
-from .errors import InputError, SessionError
+from .errors import DeviceError, InputError, SessionError
 from .experiment import LoadedExperiment
 from .log import TsvLog, sha256_file, write_json_atomic
 from .model import DeviceProfile, PlayReport, TrialRecord
@@ -85,6 +85,10 @@ class SessionPaths:
     @property
     def session_json(self) -> Path:
         return self.dir / "session.json"
+
+
+DeviceFaultHandler = Callable[[DeviceError, Trial], str]
+"""Asked what to do when the device fails during a trial: "retry", "skip" or "abort"."""
 
 
 class TrialSink(Protocol):
@@ -163,9 +167,18 @@ def environment() -> dict:
 def run_session(lx: LoadedExperiment, participant: str, session: int, device: DeviceBase,
                 responder: Responder, data_dir: Path | str, *,
                 conditions: list[Condition] | None = None,
-                sinks: tuple[TrialSink, ...] = (), command: list[str] | None = None
-                ) -> SessionResult:
-    """Run one session and log it. Raises SessionError if the session already exists."""
+                sinks: tuple[TrialSink, ...] = (), command: list[str] | None = None,
+                on_device_error: DeviceFaultHandler | None = None) -> SessionResult:
+    """Run one session and log it. Raises SessionError if the session already exists.
+
+    When the device fails during a trial (cable pulled, power lost), every
+    actuator is already off (the device's watchdog, ``DeviceBase``'s all-off)
+    and the session pauses on ``on_device_error(error, trial)``, which answers
+    ``"retry"`` (reopen the device and play the trial again), ``"skip"`` (log
+    the trial with status ``device_error`` and go on) or ``"abort"`` (end the
+    session, status ``failed``, the error re-raised). Without a handler the
+    session aborts.
+    """
     exp = lx.experiment
     check_participant(participant)
     check_session(session)
@@ -220,7 +233,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     status, reason = "failed", None
     try:
         for trial in trials:
-            rec, plays = _run_trial(exp, trial, device, responder)
+            rec, plays = _run_trial_pausing(exp, trial, device, responder, on_device_error)
             beh.append({**{f: trial.levels[f] for f in factors},
                         **rec.model_dump(exclude={"condition"})})
             for i, rep in enumerate(plays):
@@ -257,6 +270,30 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
             write_json_atomic(paths.session_json, record)
             result.status = status
     return result
+
+
+def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Responder,
+                       on_device_error: DeviceFaultHandler | None
+                       ) -> tuple[TrialRecord, list[PlayReport]]:
+    """A trial, with the experimenter's choice when the device fails during it."""
+    while True:
+        started = now_iso()
+        try:
+            return _run_trial(exp, trial, device, responder)
+        except DeviceError as e:
+            choice = on_device_error(e, trial) if on_device_error else "abort"
+            if choice == "retry":
+                device.close()
+                device.open()       # raises DeviceError again if it is still unreachable
+                continue
+            if choice == "skip":
+                rec = TrialRecord(trial=trial.number, repetition=trial.repetition,
+                                  stimulus=trial.stimulus, condition=trial.levels,
+                                  question=exp.question.name, answer=None,
+                                  correct_answer=correct_answer(exp.question, trial),
+                                  correct=None, status="device_error", started_at=started)
+                return rec, []
+            raise
 
 
 def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
