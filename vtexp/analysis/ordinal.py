@@ -13,7 +13,6 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..errors import InputError
 from .anova import within_design
 from .posthoc import p_adjust
 

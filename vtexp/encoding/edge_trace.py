@@ -41,6 +41,7 @@ from pydantic import Field
 
 from .._cv2 import cv2
 from ..model import Model, Pattern, PatternPoint
+from .segment import object_mask
 
 # Chain code of seed 001 Fig. 5: 0 = east, numbered clockwise (rows grow downwards).
 DIRECTIONS = ((0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1))
@@ -57,16 +58,6 @@ class EdgeTraceParams(Model):
         0.5, description="edges/skeleton modes: edge pixels a cell needs, per pixel of cell width")
     margin_cells: Annotated[float, Field(ge=0, le=10)] = Field(
         0.0, description="empty cells kept around the object's bounding box")
-
-
-def object_mask(gray: np.ndarray) -> np.ndarray:
-    """Foreground mask by Otsu's threshold; the object is the side not touching the border."""
-    cv = cv2()
-    _, mask = cv.threshold(gray, 0, 1, cv.THRESH_BINARY + cv.THRESH_OTSU)
-    border = np.concatenate([mask[0], mask[-1], mask[:, 0], mask[:, -1]])
-    if border.mean() > 0.5:
-        mask = 1 - mask
-    return mask.astype(np.uint8)
 
 
 def _bbox(mask: np.ndarray) -> tuple[int, int, int, int] | None:

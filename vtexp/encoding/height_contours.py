@@ -405,7 +405,6 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
     >>> pat.params["n_lines"], pat.lines()
     (3, [1, 2, 3])
     """
-    cv = cv2()
     g = np.asarray(gray)
     if g.ndim != 2 or g.size == 0:
         raise ValueError("expected a 2-D grayscale image")

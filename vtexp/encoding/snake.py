@@ -76,6 +76,7 @@ from pydantic import Field, field_validator
 from .._cv2 import cv2
 from ..model import Model, Pattern
 from .phantom_grid import fit_to_array, grid_path
+from .segment import object_mask
 
 
 class SnakeCornersParams(Model):
@@ -195,10 +196,7 @@ def initial_contour(smooth: np.ndarray, *, spacing_px: float, min_area: float
     img8 = smooth
     if int(img8.max()) - int(img8.min()) < 2:
         return None
-    _, mask = cv.threshold(img8, 0, 1, cv.THRESH_BINARY + cv.THRESH_OTSU)
-    border = np.concatenate([mask[0], mask[-1], mask[:, 0], mask[:, -1]])
-    if border.mean() > 0.5:
-        mask = 1 - mask
+    mask = object_mask(img8)
     contours, _ = cv.findContours(mask, cv.RETR_EXTERNAL, cv.CHAIN_APPROX_NONE)
     if not contours:
         return None

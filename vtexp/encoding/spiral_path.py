@@ -35,6 +35,7 @@ from pydantic import Field
 
 from .._cv2 import cv2
 from ..model import Model, Pattern
+from .segment import object_mask
 from .snake import SnakeResult, _as_gray, outline_pattern, working_image
 
 
@@ -67,10 +68,7 @@ def line_skeleton_path(gray: np.ndarray, *, work_px: int = 320, blur_sigma: floa
         work = cv.GaussianBlur(work, (0, 0), blur_sigma)
     if int(work.max()) - int(work.min()) < 2:
         return np.zeros((0, 2), np.int64), f
-    _, mask = cv.threshold(work, 0, 255, cv.THRESH_BINARY + cv.THRESH_OTSU)
-    border = np.concatenate([mask[0], mask[-1], mask[:, 0], mask[:, -1]])
-    if border.mean() > 127:
-        mask = 255 - mask
+    mask = object_mask(work) * np.uint8(255)
     skel = cv.ximgproc.thinning(mask)
     n_lab, labels, stats, _ = cv.connectedComponentsWithStats((skel > 0).astype(np.uint8),
                                                               connectivity=8)
