@@ -42,7 +42,11 @@ W, H = 640, 480
 
 
 def median_ms(fn, repeats: int) -> float:
-    fn()                                       # warm-up
+    # Warm up for a quarter of a second: caches, allocator and the CPU's clock settle
+    # (a single warm-up call left the first pipeline measured ~50 % slow).
+    end = time.perf_counter() + 0.25
+    while time.perf_counter() < end:
+        fn()
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
