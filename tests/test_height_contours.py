@@ -168,3 +168,15 @@ def test_ball_keeps_three_lines_under_offsets_rotation_noise_contrast(dx, dy, ro
                          noise_sd=noise, albedo=albedo, size=size, seed=1)
     pat = height_contours(img, 20, 20)
     assert pat.params["n_lines"] == 3
+
+
+def test_a_flat_object_is_shown_by_its_outline():
+    # Uniform shading: a flat object facing the camera; one line, its outline.
+    img = np.full((240, 320), 30, np.uint8)
+    img[60:180, 100:220] = 200
+    pat = height_contours(img, 20, 20)
+    assert pat.params["n_lines"] == 1
+    rows = sorted({int(p.row) for p in pat.points})
+    cols = sorted({int(p.col) for p in pat.points})
+    inner = [p for p in pat.points if rows[0] < p.row < rows[-1] and cols[0] < p.col < cols[-1]]
+    assert pat.points and not inner                     # a ring, nothing inside

@@ -266,6 +266,10 @@ def normalise_height(height: np.ndarray, mask: np.ndarray) -> np.ndarray:
     hi = float(height.max())
     if hi > lo:
         h[m] = (height[m] - lo) / (hi - lo)
+    else:
+        # A flat object (uniform shading: it faces the camera) stands as a whole above
+        # the background; its one contour line is then its outline.
+        h[m] = 1.0
     return h
 
 
