@@ -288,3 +288,35 @@ def test_a_device_fault_pauses_the_session_for_the_experimenter(tmp_path, minima
     else:
         assert meta["status"] == "failed" and "lost contact" in meta["reason"]
         assert len(rows) == 1
+
+
+def test_screen_hooks_and_abort_from_the_responder(tmp_path, minimal_yaml):
+    from vtexp.errors import SessionAborted
+    lx = load_experiment(write_experiment(tmp_path, minimal_yaml))
+    seen = []
+
+    class Screen(ScriptedResponder):
+        def instructions(self, text):
+            seen.append(("instructions", text))
+
+        def stimulus_starts(self, trial):
+            seen.append(("ready", trial.number))
+
+        def finish(self, text):
+            seen.append(("finish", text))
+
+    res, _ = run(lx, tmp_path / "a", responder=Screen(lambda q, t: t.levels["shape"]))
+    assert res.status == "completed"
+    assert seen[0][0] == "instructions" and seen[-1][0] == "finish"
+    assert [n for k, n in seen if k == "ready"] == [1, 2, 3, 4]
+
+    def escape(q, t):
+        if t.number == 3:
+            raise SessionAborted("aborted by the participant (Escape)")
+        return t.levels["shape"]
+    with pytest.raises(SessionAborted):
+        run(lx, tmp_path / "b", responder=ScriptedResponder(escape))
+    d = tmp_path / "b" / "mini" / "sub-01" / "ses-1"
+    meta = json.loads((d / "session.json").read_text())
+    assert meta["status"] == "aborted" and "Escape" in meta["reason"]
+    assert len(read_session(d).trials) == 2

@@ -61,3 +61,9 @@ class DeviceError(VtexpError):
 
 class SessionError(VtexpError):
     """A session cannot start or continue (existing data, unwritable disk...)."""
+
+
+class SessionAborted(VtexpError):
+    """The experimenter or participant aborted the session (e.g. Escape in the window)."""
+
+    exit_code = 130

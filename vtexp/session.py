@@ -30,11 +30,11 @@ from . import __version__
 from .compile import Condition, compile_conditions
 from .design import Trial, trial_list
 from .devices.base import DeviceBase
-from .errors import DeviceError, InputError, SessionError
+from .errors import DeviceError, InputError, SessionAborted, SessionError
 from .experiment import LoadedExperiment
 from .log import TsvLog, sha256_file, write_json_atomic
 from .model import DeviceProfile, PlayReport, TrialRecord
-from .responders.base import Responder, correct_answer
+from .responders.base import Responder, call_hook, correct_answer
 
 PARTICIPANT = re.compile(r"^[A-Za-z0-9]{1,64}$")
 FORMAT_VERSION = 1
@@ -232,6 +232,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     result = SessionResult(paths, "running", seed=seed)
     status, reason = "failed", None
     try:
+        call_hook(responder, "instructions", exp.instructions.strip() or exp.question.prompt)
         for trial in trials:
             rec, plays = _run_trial_pausing(exp, trial, device, responder, on_device_error)
             beh.append({**{f: trial.levels[f] for f in factors},
@@ -250,9 +251,11 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
             for sink in sinks:
                 sink(rec, trial, len(trials))
             _wait(device, exp.design.iti_ms)
+        call_hook(responder, "finish", "Thank you. The session is over.")
         status = "completed"
-    except KeyboardInterrupt:
-        status, reason = "aborted", "interrupted by the experimenter"
+    except (KeyboardInterrupt, SessionAborted) as e:
+        status, reason = "aborted", (str(e) if isinstance(e, SessionAborted)
+                                     else "interrupted by the experimenter")
         raise
     except BaseException as e:
         status, reason = "failed", f"{type(e).__name__}: {e}"
@@ -300,6 +303,7 @@ def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
                ) -> tuple[TrialRecord, list[PlayReport]]:
     started = now_iso()
     schedule = trial.condition.schedule
+    call_hook(responder, "stimulus_starts", trial)
     plays = [device.play(schedule)]
     q = exp.question
 

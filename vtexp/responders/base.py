@@ -44,3 +44,30 @@ class Responder(Protocol):
     description: str
 
     def ask(self, question: ChoiceQuestion, trial: Trial, replay: Replay | None) -> Response: ...
+
+
+class ScreenResponder(Responder, Protocol):
+    """A responder with a screen of its own (the participant's window).
+
+    The session engine calls these, when a responder has them, around the trials:
+    ``instructions`` once before the first trial, ``stimulus_starts`` just before
+    each stimulus plays (a "ready" or fixation screen), ``pause`` at a break,
+    ``finish`` after the last trial. Raising :class:`vtexp.errors.SessionAborted`
+    from any of them, or from ``ask``, aborts the session: every actuator off,
+    the session marked aborted, completed trials kept.
+    """
+
+    def instructions(self, text: str) -> None: ...
+
+    def stimulus_starts(self, trial: Trial) -> None: ...
+
+    def pause(self, text: str) -> None: ...
+
+    def finish(self, text: str) -> None: ...
+
+
+def call_hook(responder: object, name: str, *args) -> None:
+    """Call ``responder.name(*args)`` if the responder has that screen."""
+    hook = getattr(responder, name, None)
+    if callable(hook):
+        hook(*args)
