@@ -1,6 +1,6 @@
 """A session run in a child process, slowed down so that a test can kill it mid-way.
 
-Usage: python session_child.py EXPERIMENT DATA PARTICIPANT DELAY_S
+Usage: python session_child.py EXPERIMENT DATA PARTICIPANT DELAY_S [resume]
 Prints "logged N" after trial N is on disk.
 """
 
@@ -32,5 +32,6 @@ def announce(rec, trial, total):
 
 
 with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
-    run_session(lx, participant, 1, dev, responder, data, sinks=(announce,))
+    run_session(lx, participant, 1, dev, responder, data, sinks=(announce,),
+                resume=len(sys.argv) > 5 and sys.argv[5] == "resume")
 print("done", flush=True)

@@ -320,3 +320,126 @@ def test_screen_hooks_and_abort_from_the_responder(tmp_path, minimal_yaml):
     meta = json.loads((d / "session.json").read_text())
     assert meta["status"] == "aborted" and "Escape" in meta["reason"]
     assert len(read_session(d).trials) == 2
+
+
+def _comparable(paths):
+    """The session's data without what differs between runs (wall clock, device clock)."""
+    beh = pd.read_csv(paths.beh_tsv, sep="\t", dtype=str, keep_default_na=False)
+    ev = pd.read_csv(paths.events_tsv, sep="\t", dtype=str, keep_default_na=False)
+    return (beh.drop(columns=["started_at", "stimulus_onset_ms"]),
+            ev.drop(columns=["onset_ms"]))
+
+
+def test_killed_at_random_moments_and_resumed_equals_an_uninterrupted_run(tmp_path):
+    # The reference: the same participant's session run straight through.
+    ref = _child(tmp_path / "ref", "K9", 0.0)
+    assert ref.wait(timeout=120) == 0
+    ref_paths = SessionPaths.of(tmp_path / "ref", "duration_interval_grid",
+                                "durationIntervalGrid", "K9", 1)
+    # The same session killed with SIGKILL at random moments, resumed each time.
+    rng = random.Random(7)
+    data = tmp_path / "killed"
+    paths = SessionPaths.of(data, "duration_interval_grid", "durationIntervalGrid", "K9", 1)
+    kills = 0
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for _ in range(60):
+        args = [sys.executable, str(ROOT / "tests" / "session_child.py"), str(GRID), str(data),
+                "K9", "0.004"] + (["resume"] if paths.session_json.exists() else [])
+        proc = subprocess.Popen(args, stdout=subprocess.PIPE, text=True, env=env)
+        out = ""
+        for line in proc.stdout:                    # wait until this run has made progress
+            out += line
+            if line.startswith("logged") or line.startswith("done"):
+                break
+        time.sleep(rng.uniform(0.0, 0.15))          # then kill at a random moment
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGKILL)
+            kills += 1
+        out += proc.communicate(timeout=60)[0]
+        if "done" in out:
+            break
+    else:
+        pytest.fail("the session never finished")
+    assert kills >= 3
+    meta = json.loads(paths.session_json.read_text())
+    # Some kills land during start-up, before the session is reopened: fewer resumes.
+    assert meta["status"] == "completed" and 3 <= len(meta["resumes"]) <= kills
+    beh, ev = _comparable(paths)
+    ref_beh, ref_ev = _comparable(ref_paths)
+    pd.testing.assert_frame_equal(beh, ref_beh)
+    pd.testing.assert_frame_equal(ev, ref_ev)
+
+
+def test_resume_refuses_what_it_cannot_continue(tmp_path, minimal_yaml, grid_lx):
+    res, _ = run(grid_lx, tmp_path)
+    with pytest.raises(SessionError, match="already completed"):
+        with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
+            run_session(grid_lx, "01", 1, dev, make_responder("scripted:correct", "01", 1),
+                        tmp_path, resume=True)
+    with pytest.raises(SessionError, match="no session 2 .* to resume"):
+        with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
+            run_session(grid_lx, "01", 2, dev, make_responder("scripted:correct", "01", 2),
+                        tmp_path, resume=True)
+    # A different experiment file (edited since the session began) is refused.
+    lx = load_experiment(write_experiment(tmp_path, minimal_yaml))
+    with pytest.raises(RuntimeError):
+        run(lx, tmp_path / "m", responder=ScriptedResponder(
+            lambda q, t: (_ for _ in ()).throw(RuntimeError("stop")) if t.number == 3
+            else t.levels["shape"]))
+    edited = load_experiment(write_experiment(tmp_path, minimal_yaml.replace(
+        "Which shape?", "Which shape did you feel?")))
+    with pytest.raises(SessionError, match="SHA-256 differs"):
+        with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
+            run_session(edited, "01", 1, dev, make_responder("scripted:correct", "01", 1),
+                        tmp_path / "m", resume=True)
+    # The same file continues at trial 3.
+    with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
+        res = run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1),
+                          tmp_path / "m", resume=True)
+    assert res.status == "completed" and [r.trial for r in res.records] == [3, 4]
+    assert list(read_session(res.paths.dir).trials["trial"]) == [1, 2, 3, 4]
+
+
+def test_disk_full_stops_before_the_next_trial_with_the_reason(tmp_path, minimal_yaml,
+                                                               monkeypatch):
+    import errno
+
+    import vtexp.log as vlog
+    lx = load_experiment(write_experiment(tmp_path, minimal_yaml))
+    real_write = os.write
+    state = {"beh_rows": 0}
+
+    def write(fd, data):
+        # The third trial's row finds the disk full after writing half of it.
+        if data.startswith(b"3\t"):
+            real_write(fd, data[: len(data) // 2])
+            raise OSError(errno.ENOSPC, "No space left on device")
+        if data[:1].isdigit():
+            state["beh_rows"] += 1
+        return real_write(fd, data)
+    monkeypatch.setattr(vlog.os, "write", write)
+    with pytest.raises(SessionError, match="No space left on device.*every row written before "
+                                           "is intact"):
+        run(lx, tmp_path / "d", responder=make_responder("scripted:correct", "01", 1))
+    monkeypatch.setattr(vlog.os, "write", real_write)
+    d = tmp_path / "d" / "mini" / "sub-01" / "ses-1"
+    data = read_session(d)
+    assert list(data.trials["trial"]) == [1, 2]                   # nothing corrupted
+    assert not paths_events_complete(d)                            # trial 3's event row cut
+    meta = json.loads((d / "session.json").read_text())
+    assert meta["status"] == "failed" and "No space left" in meta["reason"]
+    # With space again, the session resumes at trial 3.
+    with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
+        res = run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1),
+                          tmp_path / "d", resume=True)
+    assert [r.trial for r in res.records] == [3, 4]
+    assert list(read_session(d).trials["trial"]) == [1, 2, 3, 4]
+    assert paths_events_complete(d)
+    ev = pd.read_csv(next(d.glob("*_events.tsv")), sep="\t")
+    played = {t: len(ev[ev["trial"] == t]) for t in (1, 2, 3, 4)}
+    assert played == {r.trial: r.n_pulses for r in res.records} | {
+        t: n for t, n in zip((1, 2), read_session(d).trials["n_pulses"][:2], strict=True)}
+
+
+def paths_events_complete(d) -> bool:
+    return next(d.glob("*_events.tsv")).read_bytes().endswith(b"\n")

@@ -87,22 +87,25 @@ class _Progress:
         self.t0 = time.monotonic()
         self.correct = 0
         self.scored = 0
+        self.played = 0
 
     def __call__(self, rec, trial, total) -> None:
+        self.played += 1
         if rec.correct is not None:
             self.scored += 1
             self.correct += int(rec.correct)
         if self.quiet:
             return
         el = time.monotonic() - self.t0
-        eta = el / trial.number * (total - trial.number)
+        eta = el / self.played * (total - trial.number)     # a resumed run starts midway
         acc = f"{self.correct / self.scored:5.1%}" if self.scored else "  n/a"
         print(f"  trial {trial.number:>4}/{total}  {trial.condition.label:<40} "
               f"answer {rec.answer:<12} elapsed {el:6.1f}s  left ~{eta:5.1f}s  acc {acc}",
               file=sys.stderr, flush=True)
 
 
-def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet, conds=None):
+def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet, conds=None,
+             resume=False):
     from .devices import open_device
     from .model import DeviceProfile
     from .responders import make_responder
@@ -116,7 +119,8 @@ def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet,
     with device:
         return run_session(lx, participant, session, device, responder, data, conditions=conds,
                            sinks=(_Progress(quiet),), command=sys.argv,
-                           on_device_error=_ask_experimenter if sys.stdin.isatty() else None)
+                           on_device_error=_ask_experimenter if sys.stdin.isatty() else None,
+                           resume=resume)
 
 
 def _ask_experimenter(error, trial) -> str:
@@ -139,7 +143,7 @@ def cmd_run(args) -> int:
 
     lx = load_experiment(args.file)
     res = _run_one(lx, args.participant, args.session, args.device, args.responder,
-                   args.data, args.quiet)
+                   args.data, args.quiet, resume=args.resume)
     acc = [r.correct for r in res.records if r.correct is not None]
     _out(f"session {res.status}: {len(res.records)} trials logged in {res.paths.dir}"
          + (f"; {sum(acc)}/{len(acc)} correct" if acc else ""))
@@ -272,9 +276,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--device", default="sim", help="device backend (default: sim)")
     s.add_argument("--responder", required=True,
                    help="who answers: scripted:correct | scripted:random | "
-                        "scripted:accuracy=P | scripted:answers=FILE")
+                        "scripted:accuracy=P | scripted:answers=FILE | window (the "
+                        "participant's PsychoPy window, fullscreen on screen 0; options "
+                        "after a colon, comma-separated: windowed, fullscreen, screen=N, "
+                        "size=WxH, abort=KEY (default escape), e.g. "
+                        "window:windowed,size=1024x768 or window:screen=1; needs the "
+                        "'gui' extra)")
     s.add_argument("--data", default="data", help="data folder (default: ./data)")
     s.add_argument("--quiet", "-q", action="store_true", help="no per-trial progress")
+    s.add_argument("--resume", action="store_true",
+                   help="continue this participant's unfinished session at its next trial")
     s.set_defaults(func=cmd_run)
 
     s = sub.add_parser("analyze", help="statistics and reports from logged sessions")

@@ -60,6 +60,46 @@ class TsvLog:
         self._write("\t".join(self.columns) + "\n")
         fsync_dir(self.path.parent)
 
+    @classmethod
+    def reopen(cls, path: Path, columns: Iterable[str]) -> tuple["TsvLog", list[list[str]], int]:
+        """Reopen an existing log to append to it (resuming a session).
+
+        A last row cut off mid-write (no final newline) is removed first, so
+        the next row starts on a line of its own. Returns the log, the complete
+        rows already in it (as lists of strings) and the number of bytes removed.
+        """
+        path = Path(path)
+        columns = list(columns)
+        try:
+            data = path.read_bytes()
+        except OSError as e:
+            raise SessionError(f"cannot read {path} to resume: {e.strerror}") from None
+        cut = data.rfind(b"\n") + 1
+        removed = len(data) - cut
+        lines = data[:cut].decode("utf-8").split("\n")[:-1]
+        if not lines or lines[0].split("\t") != columns:
+            raise SessionError(f"{path} does not have the columns this experiment writes; "
+                               "it cannot be resumed")
+        log = cls.__new__(cls)
+        log.path, log.columns = path, columns
+        try:
+            log._fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+            if removed:
+                os.ftruncate(log._fd, cut)
+                os.fsync(log._fd)
+        except OSError as e:
+            raise SessionError(f"cannot reopen {path}: {e.strerror}") from None
+        return log, [ln.split("\t") for ln in lines[1:]], removed
+
+    def truncate_rows(self, keep: int) -> None:
+        """Keep the header and the first ``keep`` rows; drop the rest (fsync'd)."""
+        data = self.path.read_bytes()
+        pos = 0
+        for _ in range(keep + 1):
+            pos = data.index(b"\n", pos) + 1
+        os.ftruncate(self._fd, pos)
+        os.fsync(self._fd)
+
     def append(self, row: dict[str, Any]) -> None:
         unknown = set(row) - set(self.columns)
         if unknown:

@@ -168,8 +168,15 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                 responder: Responder, data_dir: Path | str, *,
                 conditions: list[Condition] | None = None,
                 sinks: tuple[TrialSink, ...] = (), command: list[str] | None = None,
-                on_device_error: DeviceFaultHandler | None = None) -> SessionResult:
+                on_device_error: DeviceFaultHandler | None = None,
+                resume: bool = False) -> SessionResult:
     """Run one session and log it. Raises SessionError if the session already exists.
+
+    ``resume=True`` continues a session that did not finish (killed, crashed,
+    aborted): the same trial list is rebuilt from the same seed, the trials the
+    log already holds are skipped, and the next trial is the first one missing.
+    A row cut off mid-write is removed first. The experiment file must be the
+    one the session started with (same SHA-256).
 
     When the device fails during a trial (cable pulled, power lost), every
     actuator is already off (the device's watchdog, ``DeviceBase``'s all-off)
@@ -190,53 +197,62 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     trials, seed = trial_list(exp, conditions, participant, session)
     paths = SessionPaths.of(data_dir, exp.name, exp.task_label, participant, session)
 
-    try:
-        paths.dir.parent.mkdir(parents=True, exist_ok=True)
-        paths.dir.mkdir()
-    except FileExistsError:
-        raise SessionError(f"session {session} of participant {participant} already exists in "
-                           f"{paths.dir}; nothing was overwritten. Use another --session "
-                           "number.") from None
-    except OSError as e:
-        raise SessionError(f"cannot create the session folder {paths.dir}: "
-                           f"{e.strerror}") from None
-
-    info = device.open()
-    record: dict = {
-        "format": "vtexp-session", "format_version": FORMAT_VERSION,
-        "experiment": exp.name, "task": exp.task_label, "participant": participant,
-        "session": session, "status": "running", "started_at": now_iso(), "ended_at": None,
-        "seed": seed, "seed_source": "design.seed" if exp.design.seed is not None
-        else "derived from (experiment, participant, session)",
-        "n_trials_planned": len(trials),
-        "trial_order": [t.condition.index for t in trials],
-        "conditions": [{"index": c.index, "levels": c.levels, "stimulus": c.stimulus,
-                        "encoding": c.encoding_params, "coding": c.coding_params}
-                       for c in conditions],
-        "experiment_file": {"path": str(lx.path), "sha256": lx.sha256, "text": lx.source.text},
-        "experiment_loaded": exp.model_dump(mode="json"),
-        "device": info.model_dump(mode="json"),
-        "device_profile": profile.model_dump(mode="json"),
-        "responder": getattr(responder, "description", type(responder).__name__),
-        "command": command or sys.argv,
-        "environment": environment(),
-        "files": {"beh": paths.beh_tsv.name, "sidecar": paths.beh_json.name,
-                  "events": paths.events_tsv.name},
-        "checksums": None, "n_trials_logged": 0, "reason": None,
-    }
-    write_json_atomic(paths.session_json, record)
-    write_json_atomic(paths.beh_json, sidecar(lx))
     factors = list(exp.factors)
-    beh = TsvLog(paths.beh_tsv, trial_columns(factors))
-    events = TsvLog(paths.events_tsv, EVENT_COLUMNS)
+    if resume:
+        if not paths.session_json.is_file():
+            raise SessionError(f"there is no session {session} of participant {participant} in "
+                               f"{paths.dir} to resume")
+        info = device.open()
+        record, beh, events, done = _reopen(paths, lx, trials, seed, factors, info)
+    else:
+        try:
+            paths.dir.parent.mkdir(parents=True, exist_ok=True)
+            paths.dir.mkdir()
+        except FileExistsError:
+            raise SessionError(f"session {session} of participant {participant} already exists "
+                               f"in {paths.dir}; nothing was overwritten. Use --resume to "
+                               "continue it, or another --session number.") from None
+        except OSError as e:
+            raise SessionError(f"cannot create the session folder {paths.dir}: "
+                               f"{e.strerror}") from None
+        info = device.open()
+        record = {
+            "format": "vtexp-session", "format_version": FORMAT_VERSION,
+            "experiment": exp.name, "task": exp.task_label, "participant": participant,
+            "session": session, "status": "running", "started_at": now_iso(), "ended_at": None,
+            "seed": seed, "seed_source": "design.seed" if exp.design.seed is not None
+            else "derived from (experiment, participant, session)",
+            "n_trials_planned": len(trials),
+            "trial_order": [t.condition.index for t in trials],
+            "conditions": [{"index": c.index, "levels": c.levels, "stimulus": c.stimulus,
+                            "encoding": c.encoding_params, "coding": c.coding_params}
+                           for c in conditions],
+            "experiment_file": {"path": str(lx.path), "sha256": lx.sha256,
+                                "text": lx.source.text},
+            "experiment_loaded": exp.model_dump(mode="json"),
+            "device": info.model_dump(mode="json"),
+            "device_profile": profile.model_dump(mode="json"),
+            "responder": getattr(responder, "description", type(responder).__name__),
+            "command": command or sys.argv,
+            "environment": environment(),
+            "files": {"beh": paths.beh_tsv.name, "sidecar": paths.beh_json.name,
+                      "events": paths.events_tsv.name},
+            "checksums": None, "n_trials_logged": 0, "reason": None, "resumes": [],
+        }
+        write_json_atomic(paths.session_json, record)
+        write_json_atomic(paths.beh_json, sidecar(lx))
+        beh = TsvLog(paths.beh_tsv, trial_columns(factors))
+        events = TsvLog(paths.events_tsv, EVENT_COLUMNS)
+        done = 0
     result = SessionResult(paths, "running", seed=seed)
     status, reason = "failed", None
     try:
+        call_hook(responder, "resume_at", done)
         call_hook(responder, "instructions", exp.instructions.strip() or exp.question.prompt)
-        for trial in trials:
+        for trial in trials[done:]:
             rec, plays = _run_trial_pausing(exp, trial, device, responder, on_device_error)
-            beh.append({**{f: trial.levels[f] for f in factors},
-                        **rec.model_dump(exclude={"condition"})})
+            # The device events first, the trial's row last: the row is what makes a
+            # trial complete, so a trial cut short leaves no row and is played again.
             for i, rep in enumerate(plays):
                 for p in rep.pulses:
                     events.append({"trial": trial.number, "play": i, "row": p.row, "col": p.col,
@@ -246,8 +262,10 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                                    "amplitude_v": p.train.amplitude_v if p.train else None,
                                    "frequency_hz": p.train.frequency_hz if p.train else None,
                                    "pulse_width_ms": p.train.pulse_width_ms if p.train else None})
+            beh.append({**{f: trial.levels[f] for f in factors},
+                        **rec.model_dump(exclude={"condition"})})
             result.records.append(rec)
-            record["n_trials_logged"] = len(result.records)
+            record["n_trials_logged"] = done + len(result.records)
             for sink in sinks:
                 sink(rec, trial, len(trials))
             _wait(device, exp.design.iti_ms)
@@ -267,12 +285,56 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
             beh.close()
             events.close()
             record.update(status=status, reason=reason, ended_at=now_iso(),
-                          n_trials_logged=len(result.records),
+                          n_trials_logged=done + len(result.records),
                           checksums={f.name: sha256_file(f) for f in
                                      (paths.beh_tsv, paths.beh_json, paths.events_tsv)})
             write_json_atomic(paths.session_json, record)
             result.status = status
     return result
+
+
+def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed: int,
+            factors: list[str], info) -> tuple[dict, TsvLog, TsvLog, int]:
+    """Check that a session can be resumed and reopen its logs; return how many trials it holds."""
+    import json
+
+    try:
+        record = json.loads(paths.session_json.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        raise SessionError(f"cannot read {paths.session_json}: {e}") from None
+    if record.get("status") == "completed":
+        raise SessionError(f"session in {paths.dir} is already completed; nothing to resume")
+    if record.get("experiment_file", {}).get("sha256") != lx.sha256:
+        raise SessionError(f"the experiment file {lx.path} is not the one session {paths.dir} "
+                           "started with (its SHA-256 differs); resume with that file, or "
+                           "start a new session")
+    if record.get("seed") != seed or record.get("trial_order") != \
+            [t.condition.index for t in trials]:
+        raise SessionError(f"the trial list of {paths.dir} cannot be rebuilt (seed or order "
+                           "differ); it cannot be resumed")
+    beh, rows, cut_beh = TsvLog.reopen(paths.beh_tsv, trial_columns(factors))
+    cols = trial_columns(factors)
+    for k, row in enumerate(rows, start=1):
+        t = trials[k - 1] if k <= len(trials) else None
+        if t is None or row[cols.index("trial")] != str(k) or \
+                any(row[cols.index(f)] != t.levels[f] for f in factors):
+            beh.close()
+            raise SessionError(f"row {k} of {paths.beh_tsv} does not match the planned trial "
+                               f"{k}; the log cannot be resumed")
+    done = len(rows)
+    events, erows, cut_ev = TsvLog.reopen(paths.events_tsv, EVENT_COLUMNS)
+    keep = sum(1 for r in erows if int(r[0]) <= done)
+    if keep < len(erows):
+        events.truncate_rows(keep)          # events of the trial that was cut short
+    record.setdefault("resumes", []).append({
+        "at": now_iso(), "trials_done": done, "device": info.model_dump(mode="json"),
+        "removed": {"beh_bytes": cut_beh, "event_rows": len(erows) - keep,
+                    "event_bytes": cut_ev},
+        "previous_status": record.get("status"), "previous_reason": record.get("reason")})
+    record.update(status="running", reason=None, ended_at=None, checksums=None,
+                  n_trials_logged=done)
+    write_json_atomic(paths.session_json, record)
+    return record, beh, events, done
 
 
 def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Responder,

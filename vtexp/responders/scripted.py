@@ -35,6 +35,11 @@ class ScriptedResponder:
         self.description = description
         self.replays = replays
 
+    def resume_at(self, trials_done: int) -> None:
+        """A resumed session continues with the answer for the next trial."""
+        if self._answers is not None:
+            self._next = trials_done
+
     def ask(self, question: ChoiceQuestion, trial: Trial, replay: Replay | None) -> Response:
         used = 0
         while replay is not None and used < min(self.replays, question.replays):
