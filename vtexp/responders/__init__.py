@@ -12,8 +12,12 @@ def make_responder(spec: str, participant: str, session: int) -> Responder:
     kind, _, arg = spec.partition(":")
     if kind == "scripted":
         return make_scripted(arg or "correct", participant, session)
+    if kind == "window":
+        from .window import make_window     # PsychoPy is imported only here
+        return make_window(arg)
     raise InputError(f"unknown responder {spec!r}; available: scripted:correct, "
-                     "scripted:random, scripted:accuracy=P, scripted:answers=FILE",
+                     "scripted:random, scripted:accuracy=P, scripted:answers=FILE, "
+                     "window[:windowed|fullscreen,screen=N,size=WxH,abort=KEY]",
                      key="--responder")
 
 

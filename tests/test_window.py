@@ -1,0 +1,324 @@
+"""The participant's PsychoPy window, in a real window on a virtual X server (Xvfb).
+
+A scripted participant stands in for the person: PsychoPy's ``event.getKeys`` and
+``Mouse.getPressed``/``getPos`` are replaced by its script, so every frame still goes
+through the responder's real drawing, flips, hit-testing and clock. Clicks aim at the
+centre of the button the responder has on screen. Each screen type is saved once to
+``test-output/screens/<screen>.png`` and checked to be non-blank.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import MINIMAL, ROOT, write_experiment
+
+if importlib.util.find_spec("psychopy") is None:
+    pytest.skip("PsychoPy is not installed (the 'gui' extra: pip install -e '.[gui]'; "
+                "make test installs it)", allow_module_level=True)
+
+from vtexp.devices import open_device                    # noqa: E402
+from vtexp.errors import InputError, SessionAborted     # noqa: E402
+from vtexp.experiment import load_experiment            # noqa: E402
+from vtexp.model import DeviceProfile                   # noqa: E402
+from vtexp.session import run_session                   # noqa: E402
+
+SCREENS = ROOT / "test-output" / "screens"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def xvfb():
+    """A virtual X server on a free display number, for the whole test session."""
+    exe = shutil.which("Xvfb")
+    if exe is None:
+        pytest.fail("Xvfb is not installed: apt-get install xvfb libgl1-mesa-dri "
+                    "(make test installs them)")
+    n = next(n for n in range(90, 200)
+             if not Path(f"/tmp/.X{n}-lock").exists()
+             and not Path(f"/tmp/.X11-unix/X{n}").exists())
+    proc = subprocess.Popen([exe, f":{n}", "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 20
+    while not Path(f"/tmp/.X11-unix/X{n}").exists():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail(f"Xvfb :{n} did not start: {proc.stderr.read().decode()[-500:]}")
+        time.sleep(0.05)
+    old = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = f":{n}"
+    yield f":{n}"
+    proc.terminate()
+    proc.wait(10)
+    if old is None:
+        os.environ.pop("DISPLAY", None)
+    else:
+        os.environ["DISPLAY"] = old
+
+
+class Participant:
+    """Plays a script of (screen, action) steps into the window's input.
+
+    Actions: ``("key", name)``, ``("click", value)`` (the button with that value),
+    ``("click_anywhere",)``. A step waits for its screen; the "ready" screen passes by
+    itself; any other screen than the step's fails the test.
+    """
+
+    def __init__(self, steps, shots=SCREENS):
+        self.steps = list(steps)
+        self.shots = shots
+        self.responder = None
+        self.seen: list[str] = []
+        self.pressed = False
+        self.pos = (0.9, 0.9)
+        self.polls = 0
+
+    def install(self, monkeypatch, responder):
+        from psychopy import event
+        self.responder = responder
+        monkeypatch.setattr(event, "getKeys", self.get_keys)
+        monkeypatch.setattr(event.Mouse, "getPressed", lambda m, getTime=False: [
+            int(self.pressed), 0, 0])
+        monkeypatch.setattr(event.Mouse, "getPos", lambda m: np.array(self.pos))
+        return self
+
+    def get_keys(self, keyList=None, modifiers=False, timeStamped=False):
+        r = self.responder
+        self.polls += 1
+        assert self.polls < 5000, f"the script is stuck at {self.steps[:1]} on {r.screen}"
+        if not self.seen or self.seen[-1] != r.screen:
+            self.seen.append(r.screen)
+        name = r.screen if r.screen != "choice" or r.buttons[-1].value != "again" or \
+            r.buttons[-1].enabled else "choice_no_replays_left"
+        if self.shots and not (self.shots / f"{name}.png").exists():
+            r.capture(self.shots / f"{name}.png")
+        if self.pressed:                    # release the button for a frame
+            self.pressed = False
+            return []
+        if not self.steps or r.screen == "ready" and self.steps[0][0] != "ready":
+            return []
+        screen, action, *arg = self.steps[0]
+        assert screen == r.screen, f"expected the {screen} screen, the window shows {r.screen}"
+        self.steps.pop(0)
+        t = timeStamped.getTime() if timeStamped else None
+        if action == "key":
+            return [(arg[0], t)] if timeStamped else [arg[0]]
+        if action == "click":
+            b = next(b for b in r.buttons if b.value == arg[0])
+            self.pos, self.pressed = (b.x, b.y), True
+        elif action == "click_anywhere":
+            self.pos, self.pressed = (0.3, -0.2), True
+        return []
+
+
+@pytest.fixture(scope="module", autouse=True)
+def fresh_screens():
+    shutil.rmtree(SCREENS, ignore_errors=True)
+    SCREENS.mkdir(parents=True)
+
+
+def assert_not_blank(png: Path):
+    from PIL import Image
+    px = np.asarray(Image.open(png).convert("L"), dtype=float)
+    assert px.std() > 10, f"{png} looks blank (pixel sd {px.std():.1f})"
+    assert (px > 200).mean() > 0.002, f"{png} has almost no bright (text) pixels"
+
+
+def responder(**opts):
+    from vtexp.responders.window import WindowOptions, WindowResponder
+    return WindowResponder(WindowOptions(fullscreen=False, size=(1024, 768), **opts))
+
+
+def experiment(tmp_path, replays=0):
+    text = MINIMAL + (f"  replays: {replays}\n" if replays else "")
+    return load_experiment(write_experiment(tmp_path, text))
+
+
+def run(lx, tmp_path, resp):
+    with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
+        res = run_session(lx, "01", 1, dev, resp, tmp_path / "data")
+    return res, dev
+
+
+def logged(res):
+    beh = next(res.paths.dir.glob("*_beh.tsv"))
+    return (pd.read_csv(beh, sep="\t", dtype=str, keep_default_na=False),
+            json.loads((res.paths.dir / "session.json").read_text()))
+
+
+def test_a_session_answered_with_keys_and_clicks_is_logged(tmp_path, monkeypatch):
+    lx = experiment(tmp_path)
+    r = responder()
+    p = Participant([("instructions", "key", "space"),
+                     ("choice", "key", "1"), ("choice", "click", "circle"),
+                     ("choice", "key", "num_2"), ("choice", "click", "square"),
+                     ("end", "key", "space")]).install(monkeypatch, r)
+    res, dev = run(lx, tmp_path, r)
+    beh, meta = logged(res)
+    assert meta["status"] == "completed" and meta["responder"].startswith("window")
+    assert list(beh["answer"]) == ["square", "circle", "circle", "square"]
+    rts = beh["rt_s"].astype(float)
+    assert (rts >= 0).all() and beh["replays"].eq("0").all()
+    assert p.seen == ["instructions", "ready", "choice"] * 1 + ["ready", "choice"] * 3 + ["end"]
+    assert r.win is None                     # the end screen closed the window
+    for png in SCREENS.glob("*.png"):
+        assert_not_blank(png)
+
+
+def test_replays_are_played_counted_and_stop_when_none_are_left(tmp_path, monkeypatch):
+    lx = experiment(tmp_path, replays=2)
+    r = responder()
+    Participant([("instructions", "click_anywhere"),
+                 ("choice", "click", "again"), ("choice", "key", "r"),
+                 ("choice", "click", "again"),       # greyed out now: nothing happens
+                 ("choice", "key", "r"),             # neither does its key
+                 ("choice", "key", "2"),
+                 ("choice", "click", "again"), ("choice", "key", "1"),
+                 ("choice", "key", "1"), ("choice", "key", "2"),
+                 ("end", "click_anywhere")]).install(monkeypatch, r)
+    res, dev = run(lx, tmp_path, r)
+    beh, _ = logged(res)
+    assert list(beh["replays"]) == ["2", "1", "0", "0"]
+    assert list(beh["answer"]) == ["circle", "square", "square", "circle"]
+    assert len(dev.plays) == 4 + 3          # every replay was felt
+    events = pd.read_csv(next(res.paths.dir.glob("*_events.tsv")), sep="\t")
+    assert sorted(events[events["trial"] == 1]["play"].unique()) == [0, 1, 2]
+
+
+def test_escape_aborts_at_once_and_keeps_the_completed_trials(tmp_path, monkeypatch):
+    lx = experiment(tmp_path)
+    r = responder()
+    Participant([("instructions", "key", "space"), ("choice", "key", "1"),
+                 ("choice", "key", "escape"), ("choice", "key", "2")]).install(monkeypatch, r)
+    with pytest.raises(SessionAborted, match="escape"):
+        run(lx, tmp_path, r)
+    d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"
+    meta = json.loads((d / "session.json").read_text())
+    beh = pd.read_csv(next(d.glob("*_beh.tsv")), sep="\t", dtype=str)
+    assert meta["status"] == "aborted" and "escape" in meta["reason"]
+    assert list(beh["answer"]) == ["square"]
+    assert r.win is None                     # the window is gone with the session
+
+
+def test_the_experimenter_can_choose_the_abort_key(tmp_path, monkeypatch):
+    r = responder(abort_key="q")
+    Participant([("instructions", "key", "escape"),      # not the abort key now
+                 ("instructions", "key", "q")], shots=None).install(monkeypatch, r)
+    with pytest.raises(SessionAborted, match="q key"):
+        r.instructions("Page one")
+    r.close()
+
+
+def test_instruction_pages_and_the_break_screen(monkeypatch):
+    r = responder()
+    p = Participant([("instructions", "key", "space"), ("instructions", "click_anywhere"),
+                     ("break", "key", "return")]).install(monkeypatch, r)
+    r.instructions("You will feel a shape on your back.\n---\nThen choose what it was.")
+    r.pause("Take a break. Have some water.")
+    assert p.seen == ["instructions", "break"] and not p.steps
+    r.close()
+    assert_not_blank(SCREENS / "break.png")
+
+
+def test_rating_scale_with_the_papers_labels(monkeypatch):
+    r = responder()
+    Participant([("rating", "key", "5"),                  # not on the scale: ignored
+                 ("rating", "key", "3"), ("rating", "click", 4)]).install(monkeypatch, r)
+    labels = {0: "no whirlpool felt", 4: "a clear whirlpool"}
+    first = r.ask_rating("How clearly did you feel a whirlpool?", range(0, 5), labels)
+    second = r.ask_rating("How clearly did you feel a whirlpool?", range(0, 5), labels)
+    assert (first.answer, second.answer) == ("3", "4") and first.rt_s >= 0
+    r.close()
+
+
+def test_rating_from_minus_two_to_plus_two_uses_position_keys(monkeypatch, tmp_path):
+    r = responder()
+    Participant([("rating", "key", "1"), ("rating", "click", 2)],
+                shots=tmp_path).install(monkeypatch, r)
+    labels = {-2: "surely a circle", 2: "surely a rectangle"}
+    a = r.ask_rating("Circle or rectangle?", range(-2, 3), labels)
+    b = r.ask_rating("Circle or rectangle?", range(-2, 3), labels)
+    assert (a.answer, b.answer) == ("-2", "2")
+    shutil.copy(tmp_path / "rating.png", SCREENS / "rating_pm2.png")
+    r.close()
+
+
+def test_number_entry_by_typing_and_by_buttons(monkeypatch):
+    r = responder()
+    Participant([("number", "key", "return"),            # nothing typed: not an answer
+                 ("number", "key", "1"), ("number", "key", "2"), ("number", "key", "backspace"),
+                 ("number", "key", "3"), ("number", "key", "return"),
+                 ("number", "click", "plus"), ("number", "click", "plus"),
+                 ("number", "click", "plus"), ("number", "click", "minus"),
+                 ("number", "click", "ok"),
+                 ("number", "key", "9"), ("number", "key", "9"),   # 99 > 20: the 2nd 9 is refused
+                 ("number", "key", "num_enter")]).install(monkeypatch, r)
+    turns = [r.ask_number("How many turns did the whirlpool make?", 0, 20).answer
+             for _ in range(3)]
+    assert turns == ["13", "1", "9"]
+    r.close()
+
+
+def test_questions_are_dispatched_by_kind(monkeypatch):
+    from types import SimpleNamespace
+    r = responder()
+    Participant([("rating", "key", "2"), ("number", "key", "4"), ("number", "key", "return")],
+                shots=None).install(monkeypatch, r)
+    rating = SimpleNamespace(kind="rating", prompt="How strong?", scale=[0, 1, 2, 3, 4],
+                             labels={0: "none", 4: "strong"}, replays=0)
+    number = SimpleNamespace(kind="number", prompt="How many?", minimum=0, maximum=20)
+    assert r.ask(rating, None, None).answer == "2"
+    assert r.ask(number, None, None).answer == "4"
+    with pytest.raises(Exception, match="cannot ask a sketch question"):
+        r.ask(SimpleNamespace(kind="sketch"), None, None)
+    r.close()
+
+
+def test_window_specs_on_the_command_line():
+    from vtexp.responders import make_responder
+    from vtexp.responders.window import WindowOptions
+    assert WindowOptions.parse("") == WindowOptions()
+    o = WindowOptions.parse("windowed,screen=1,size=1024x768,abort=q")
+    assert (o.fullscreen, o.screen, o.size, o.abort_key) == (False, 1, (1024, 768), "q")
+    for bad in ("windowd", "size=10x10", "screen=one"):
+        with pytest.raises(InputError, match="window"):
+            make_responder(f"window:{bad}", "01", 1)
+
+
+def run_python(code: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)
+
+
+def test_vtexp_imports_without_psychopy_and_says_how_to_install_it():
+    hide = "import sys; sys.modules['psychopy'] = None\n"
+    r = run_python(hide + "import vtexp, vtexp.cli, vtexp.session, vtexp.responders\n"
+                          "print('ok')")
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+    r = run_python(hide + "from vtexp.cli import main\n"
+                          f"sys.exit(main(['run', {str(ROOT / 'experiments' / 'duration_interval_grid.yaml')!r}, "
+                          "'-p', '01', '--responder', 'window', '--data', 'unused']))")
+    assert r.returncode == 2, r.stderr
+    assert "pip install -e '.[gui]'" in r.stderr and "opencv-contrib-python-headless" in r.stderr
+    assert "Traceback" not in r.stderr and not (ROOT / "unused").exists()
+
+
+def test_every_screen_type_was_saved_and_none_is_blank():
+    """Runs last: the tests above saved each screen the first time it was shown."""
+    expected = {"instructions", "ready", "choice", "choice_no_replays_left", "break", "end",
+                "rating", "rating_pm2", "number"}
+    saved = {p.stem for p in SCREENS.glob("*.png")}
+    assert expected <= saved, f"screens never shown: {sorted(expected - saved)}"
+    for png in sorted(SCREENS.glob("*.png")):
+        assert_not_blank(png)
