@@ -93,3 +93,17 @@ def test_demo_runs_logs_and_reports(cli, tmp_path):
 def test_version(cli):
     r = cli("--version")
     assert r.returncode == 0 and r.stdout.startswith("vtexp ")
+
+
+def test_six_mode_study_end_to_end_with_its_papers_analyses(cli, tmp_path):
+    six = GRID.parent / "six_mode_ball.yaml"
+    for p in ("01", "02", "03"):
+        r = cli("run", str(six), "-p", p, "--responder", "scripted:accuracy=0.6", "--data",
+                str(tmp_path), "--quiet")
+        assert r.returncode == 0, r.stderr
+    r = cli("analyze", str(tmp_path / "six_mode_ball"), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    # The 2 x 2 of seed 000 over the dynamic modes only, and its simple effects (Table 3).
+    assert "timing × intensity (display = dynamic): effect of timing: F(1, 2)" in r.stdout
+    assert "Simple effect of intensity at timing = varied (display = dynamic)" in r.stdout
+    assert "effect of display: F(1, 2)" in r.stdout

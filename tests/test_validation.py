@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from conftest import write_experiment
@@ -184,3 +186,36 @@ def test_cli_validate_ok(cli, grid_path):
     r = cli("validate", str(grid_path))
     assert r.returncode == 0, r.stderr
     assert "OK" in r.stdout and "96 trials per session" in r.stdout
+
+
+SIX = Path(__file__).resolve().parents[1] / "experiments" / "six_mode_ball.yaml"
+
+
+def test_six_mode_study_runs_its_six_listed_conditions():
+    from vtexp.compile import compile_conditions
+    lx = load_experiment(SIX)
+    conds = compile_conditions(lx)
+    assert [(c.levels["display"], c.levels["timing"], c.levels["intensity"]) for c in conds] == [
+        ("static", "none", "linear"), ("static", "none", "nonlinear"),
+        ("dynamic", "fixed", "linear"), ("dynamic", "fixed", "nonlinear"),
+        ("dynamic", "varied", "linear"), ("dynamic", "varied", "nonlinear")]
+    static = conds[0].schedule
+    assert {p.duration_ms for p in static.pulses} == {4000}
+    assert conds[4].pattern.params["n_lines"] == 3          # the ball: 3 lines (seed 000)
+
+
+@pytest.mark.parametrize("condition, needle, key", [
+    ("{display: static, timing: none}", "names no level of factor 'intensity'",
+     "design.conditions.0"),
+    ("{display: static, timing: none, intensity: loud}", "'loud' is not a level of 'intensity'",
+     "design.conditions.0.intensity"),
+    ("{display: static, timing: none, intensity: linear, mood: calm}", "'mood' is not a factor",
+     "design.conditions.0.mood"),
+])
+def test_condition_lists_are_checked(tmp_path, condition, needle, key):
+    text = SIX.read_text()
+    start = text.index("  conditions:\n")
+    end = text.index("\nquestion:")
+    text = text[:start] + f"  conditions:\n    - {condition}\n" + text[end:]
+    e = error_of(tmp_path, text)
+    assert needle in e.message and e.key == key and e.line is not None

@@ -40,13 +40,18 @@ class Condition:
 
 
 def enumerate_conditions(lx: LoadedExperiment) -> list[Condition]:
-    """All combinations of factor levels, without encoding them."""
+    """The conditions, without encoding them: ``design.conditions`` in the order listed,
+    or else every combination of factor levels (full factorial, in declaration order)."""
     exp = lx.experiment
     names = list(exp.factors)
     stim_factor = exp.stimulus_factor()
+    if exp.design.conditions is not None:
+        combos = [tuple(c[n] for n in names) for c in exp.design.conditions]
+    else:
+        combos = list(itertools.product(*(exp.factors[n].level_names for n in names)))
     out = []
-    for i, combo in enumerate(itertools.product(*(exp.factors[n].level_names for n in names))):
-        levels = dict(zip(names, combo))
+    for i, combo in enumerate(combos):
+        levels = dict(zip(names, combo, strict=True))
         enc = dict(exp.encoding.params)
         cod = dict(exp.coding.params)
         for n, lvl in levels.items():

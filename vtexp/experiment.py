@@ -122,6 +122,9 @@ class DesignSpec(Model):
                           "participant, session)")
     iti_ms: Annotated[float, Field(ge=0, le=600000)] = Field(
         1000, description="pause between trials, after the answer")
+    conditions: list[dict[str, str]] | None = Field(
+        None, description="the conditions to run, each naming a level of every factor; "
+                          "default: every combination of levels (full factorial)")
 
 
 class ChoiceQuestion(Model):
@@ -251,6 +254,28 @@ def _check(lx: LoadedExperiment) -> None:
     elif len(exp.stimuli) != 1:
         raise lx.error("several stimuli are declared but no factor chooses among them "
                        "(add a factor with 'sets: stimulus')", ("factors",))
+
+    if exp.design.conditions is not None:
+        seen: set[tuple] = set()
+        if not exp.design.conditions:
+            raise lx.error("the list of conditions is empty", ("design", "conditions"))
+        for i, cond in enumerate(exp.design.conditions):
+            kp = ("design", "conditions", i)
+            missing = [f for f in exp.factors if f not in cond]
+            extra = [k for k in cond if k not in exp.factors]
+            if extra:
+                raise lx.error(f"{extra[0]!r} is not a factor; factors: "
+                               f"{', '.join(exp.factors)}", kp + (extra[0],))
+            if missing:
+                raise lx.error(f"the condition names no level of factor {missing[0]!r}", kp)
+            for f, level in cond.items():
+                if level not in exp.factors[f].level_names:
+                    raise lx.error(f"{level!r} is not a level of {f!r}; levels: "
+                                   f"{', '.join(exp.factors[f].level_names)}", kp + (f,))
+            key = tuple(cond[f] for f in exp.factors)
+            if key in seen:
+                raise lx.error("the same condition is listed twice", kp)
+            seen.add(key)
 
     for fname in exp.factors:
         if fname in RESERVED_COLUMNS:

@@ -169,6 +169,28 @@ def _session_table(sessions: list[SessionData]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _subset(trials: pd.DataFrame, where: dict) -> pd.DataFrame:
+    """The trials at the levels ``where`` names; levels left unused are dropped."""
+    if not where:
+        return trials
+    keep = np.ones(len(trials), bool)
+    for factor, levels in where.items():
+        wanted = [levels] if isinstance(levels, str) else list(levels)
+        keep &= trials[factor].astype(str).isin(wanted).to_numpy()
+    out = trials[keep].copy()
+    for col in out.columns:
+        if isinstance(out[col].dtype, pd.CategoricalDtype):
+            out[col] = out[col].cat.remove_unused_categories()
+    return out
+
+
+def _where_text(where: dict) -> str:
+    if not where:
+        return ""
+    parts = [f"{f} = {v if isinstance(v, str) else ' or '.join(v)}" for f, v in where.items()]
+    return " (" + ", ".join(parts) + ")"
+
+
 def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experiment: str, *,
                        spec: AnalysisSpec | None = None) -> ExperimentAnalysis:
     """Every table of one experiment's report, from its tidy trial table.
@@ -223,7 +245,7 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
     else:
         for i, a in enumerate(spec.anova):
             within = a.within or factors
-            m = participant_measures(sub, a.dv, within)
+            m = participant_measures(_subset(sub, a.where), a.dv, within)
             t = run(rm_anova, m, a.dv, within, "participant")
             T[f"anova_{i + 1}"] = t
             for _, row in t.iterrows():
@@ -235,13 +257,14 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
                                 if row["mauchly_p"] == row["mauchly_p"] else
                                 " (Mauchly's test undefined: fewer participants than df + 1)")
                 res.sentences.append(
-                    f"{MEASURE_LABEL[a.dv].capitalize()}, {' × '.join(within)}: effect of "
+                    f"{MEASURE_LABEL[a.dv].capitalize()}, {' × '.join(within)}"
+                    f"{_where_text(a.where)}: effect of "
                     f"{row['effect'].replace(':', ' × ')}: {sentence}{row_note}.")
             if a.note:
                 res.sentences.append(f"(The paper: {a.note}.)")
         for i, s in enumerate(spec.simple_effects):
             within = s.within or factors
-            m = participant_measures(sub, s.dv, within)
+            m = participant_measures(_subset(sub, s.where), s.dv, within)
             methods = ["separate", "pooled"] if s.method == "both" else [s.method]
             parts = [run(simple_effects, m, s.dv, within, "participant", effect=s.effect,
                          by=s.by, method=meth) for meth in methods]
@@ -249,14 +272,15 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
             T[f"simple_effects_{i + 1}"] = t
             for _, row in t.iterrows():
                 res.sentences.append(
-                    f"Simple effect of {row['effect']} at {s.by} = {row[s.by]} "
+                    f"Simple effect of {row['effect']} at {s.by} = {row[s.by]}"
+                    f"{_where_text(s.where)} "
                     f"({row['method']} error term): F({_df(row['df1'])}, {_df(row['df2'])}) = "
                     f"{_fixed(row['F'])}, {format_p(row['p'])}"
                     + (f", η²p = {_num2(row['pes'])}" if row["method"] == "separate" else "")
                     + ".")
         for i, p in enumerate(spec.posthoc):
             within = p.within or factors
-            m = participant_measures(sub, p.dv, within)
+            m = participant_measures(_subset(sub, p.where), p.dv, within)
             T[f"posthoc_{i + 1}"] = run(pairwise_tests, m, p.dv, within, "participant",
                                         factor=p.factor, by=p.by, padjust=p.padjust)
         for i, o in enumerate(spec.ordinal):

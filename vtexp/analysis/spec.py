@@ -35,6 +35,9 @@ class AnovaSpec(Model):
         "auto", description="which p the report's sentences give; auto = Greenhouse–Geisser "
                             "when Mauchly's test rejects sphericity (p < .05)")
     note: str = Field("", description="what the paper reported, shown beside the result")
+    where: dict[str, str | list[str]] = Field(
+        default_factory=dict, description="only the trials at these levels, e.g. {display: "
+                                          "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
 
 
 class SimpleEffectsSpec(Model):
@@ -45,6 +48,9 @@ class SimpleEffectsSpec(Model):
     dv: Measure = "rate"
     within: list[str] | None = None
     method: Literal["separate", "pooled", "both"] = "both"
+    where: dict[str, str | list[str]] = Field(
+        default_factory=dict, description="only the trials at these levels, e.g. {display: "
+                                          "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
 
 
 class PosthocSpec(Model):
@@ -55,6 +61,9 @@ class PosthocSpec(Model):
     dv: Measure = "rate"
     within: list[str] | None = None
     padjust: Literal["holm", "bonferroni"] = "holm"
+    where: dict[str, str | list[str]] = Field(
+        default_factory=dict, description="only the trials at these levels, e.g. {display: "
+                                          "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
 
 
 class TableSpec(Model):
@@ -124,13 +133,16 @@ class AnalysisSpec(Model):
         refs: list[tuple[str, str]] = []
         for i, a in enumerate(self.anova):
             refs += [(f"anova[{i}].within", f) for f in a.within or []]
+            refs += [(f"anova[{i}].where", f) for f in a.where]
         for i, s in enumerate(self.simple_effects):
             refs += [(f"simple_effects[{i}].effect", s.effect), (f"simple_effects[{i}].by", s.by)]
             refs += [(f"simple_effects[{i}].within", f) for f in s.within or []]
+            refs += [(f"simple_effects[{i}].where", f) for f in s.where]
         for i, p in enumerate(self.posthoc):
             refs += [(f"posthoc[{i}].factor", p.factor)]
             refs += [(f"posthoc[{i}].by", p.by)] if p.by else []
             refs += [(f"posthoc[{i}].within", f) for f in p.within or []]
+            refs += [(f"posthoc[{i}].where", f) for f in p.where]
         if self.table:
             refs += [("table.rows", self.table.rows), ("table.columns", self.table.columns)]
         if self.confusion:
