@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 
-.PHONY: demo test venv venv-test clean
+.PHONY: demo test venv venv-test system-packages clean
 
 # Core install: what `vtexp demo`, experiments on the simulator and analysis need.
 $(VENV)/.core: pyproject.toml
@@ -23,13 +23,34 @@ $(VENV)/.test: $(VENV)/.core
 	$(BIN)/python -c "from vtexp._cv2 import cv2; cv2()"
 	touch $@
 
+# The window tests open a real PsychoPy window on a virtual X server (Xvfb) drawn by
+# Mesa's software OpenGL; pyglet loads GLU, Xxf86vm, Xinerama, Xi, Xrandr, Xcursor and
+# fontconfig at run time, and the window's text is DejaVu Sans. On Debian/Ubuntu as
+# root (CI), what is missing is installed; elsewhere the command to run is printed.
+GUI_DEBS := xvfb libgl1-mesa-dri libglu1-mesa libxxf86vm1 libxinerama1 libxi6 libxrandr2 \
+            libxcursor1 fontconfig fonts-dejavu-core
+
+system-packages:
+	@command -v dpkg-query >/dev/null || { command -v Xvfb >/dev/null || \
+	  echo "the window tests need Xvfb and Mesa OpenGL; install them with your package manager" >&2; exit 0; }; \
+	missing=$$(for p in $(GUI_DEBS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null \
+	  | grep -q 'install ok installed' || echo $$p; done | tr '\n' ' '); \
+	if [ -z "$$missing" ]; then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "+ apt-get install $$missing"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	    --no-install-recommends $$missing >/dev/null; \
+	else \
+	  echo "the window tests need: sudo apt-get install --no-install-recommends $$missing" >&2; \
+	fi
+
 venv: $(VENV)/.core
-venv-test: $(VENV)/.test
+venv-test: system-packages $(VENV)/.test
 
 demo: $(VENV)/.core
 	$(BIN)/vtexp demo
 
-test: $(VENV)/.test
+test: system-packages $(VENV)/.test
 	$(BIN)/python -m pytest
 
 clean:
