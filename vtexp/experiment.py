@@ -116,7 +116,16 @@ class FactorSpec(Model):
 class DesignSpec(Model):
     repetitions: Annotated[int, Field(ge=1, le=10000)] = Field(
         description="times each condition is presented")
-    order: Literal["random", "sequential"] = "random"
+    order: Literal["random", "sequential", "blocked"] = "random"
+    block_by: str | None = Field(
+        None, description="with order: blocked, the factor whose levels form the blocks")
+    block_order: Literal["latin_square", "random", "declared"] = Field(
+        "latin_square", description="order of the blocks: a balanced Latin square row "
+                                    "per participant (counterbalanced), random, or as declared")
+    practice: Annotated[int, Field(ge=0, le=1000)] = Field(
+        0, description="practice trials before the main trials (logged, not analysed)")
+    break_every: Annotated[int, Field(ge=1)] | None = Field(
+        None, description="a break screen after every N main trials")
     seed: int | None = Field(
         None, description="fixed shuffle seed; by default derived from (experiment, "
                           "participant, session)")
@@ -177,7 +186,7 @@ class Experiment(Model):
 
 
 RESERVED_COLUMNS = frozenset(
-    "trial practice repetition stimulus question answer correct_answer correct rt_s "
+    "trial practice repetition block stimulus question answer correct_answer correct rt_s "
     "replays stimulus_onset_ms stimulus_duration_ms n_pulses status started_at "
     "experiment participant session".split())
 
@@ -255,6 +264,13 @@ def _check(lx: LoadedExperiment) -> None:
         raise lx.error("several stimuli are declared but no factor chooses among them "
                        "(add a factor with 'sets: stimulus')", ("factors",))
 
+    d = exp.design
+    if d.order == "blocked" and (d.block_by is None or d.block_by not in exp.factors):
+        raise lx.error("order: blocked needs 'block_by: FACTOR' naming one of the factors "
+                       f"({', '.join(exp.factors)})", ("design", "block_by") if d.block_by
+                       else ("design", "order"))
+    if d.block_by is not None and d.order != "blocked":
+        raise lx.error("block_by only applies with order: blocked", ("design", "block_by"))
     if exp.design.conditions is not None:
         seen: set[tuple] = set()
         if not exp.design.conditions:

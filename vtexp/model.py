@@ -318,7 +318,8 @@ class TrialRecord(Model):
 
     trial: Annotated[int, Field(ge=1)]
     practice: bool = False
-    repetition: Annotated[int, Field(ge=1)]
+    repetition: Annotated[int, Field(ge=0)] = Field(description="0 for a practice trial")
+    block: Annotated[int, Field(ge=0)] = Field(0, description="block number, 0 if not blocked")
     stimulus: str
     condition: dict[str, str] = Field(description="factor name -> level label")
     question: str = "response"

@@ -110,8 +110,8 @@ EVENT_COLUMNS = ["trial", "play", "row", "col", "scheduled_onset_ms", "onset_ms"
 
 
 def trial_columns(factors: list[str]) -> list[str]:
-    return (["trial", "practice", "repetition", *factors, "stimulus", "question", "answer",
-             "correct_answer", "correct", "rt_s", "replays", "stimulus_onset_ms",
+    return (["trial", "practice", "repetition", "block", *factors, "stimulus", "question",
+             "answer", "correct_answer", "correct", "rt_s", "replays", "stimulus_onset_ms",
              "stimulus_duration_ms", "n_pulses", "status", "started_at"])
 
 
@@ -121,7 +121,9 @@ def sidecar(lx: LoadedExperiment) -> dict:
     cols: dict[str, dict] = {
         "trial": {"Description": "trial number in the session, from 1"},
         "practice": {"Description": "1 for a practice trial (not analysed), else 0"},
-        "repetition": {"Description": "presentation number of this condition, from 1"},
+        "repetition": {"Description": "presentation number of this condition, from 1 "
+                                      "(0 for practice trials)"},
+        "block": {"Description": "block number with a blocked design, else 0"},
     }
     for name, f in exp.factors.items():
         cols[name] = {"Description": f.description or f"level of factor '{name}'",
@@ -269,6 +271,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
             for sink in sinks:
                 sink(rec, trial, len(trials))
             _wait(device, exp.design.iti_ms)
+            _maybe_break(exp, trial, trials, responder)
         call_hook(responder, "finish", "Thank you. The session is over.")
         status = "completed"
     except (KeyboardInterrupt, SessionAborted) as e:
@@ -291,6 +294,18 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
             write_json_atomic(paths.session_json, record)
             result.status = status
     return result
+
+
+def _maybe_break(exp, trial: Trial, trials: list[Trial], responder: Responder) -> None:
+    """A break screen after every ``design.break_every`` main trials (not after the last)."""
+    every = exp.design.break_every
+    if not every or trial.practice or trial.number == trials[-1].number:
+        return
+    n_main = sum(1 for t in trials if not t.practice)
+    done = sum(1 for t in trials[:trial.number] if not t.practice)
+    if done % every == 0:
+        call_hook(responder, "pause", f"Time for a break. {done} of {n_main} trials are done. "
+                                      "Continue when you are ready.")
 
 
 def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed: int,
@@ -353,6 +368,7 @@ def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Respond
                 continue
             if choice == "skip":
                 rec = TrialRecord(trial=trial.number, repetition=trial.repetition,
+                                  practice=trial.practice, block=trial.block,
                                   stimulus=trial.stimulus, condition=trial.levels,
                                   question=exp.question.name, answer=None,
                                   correct_answer=correct_answer(exp.question, trial),
@@ -379,7 +395,8 @@ def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
     resp = responder.ask(q, trial, replay if q.replays > 0 else None)
     right = correct_answer(q, trial)
     rec = TrialRecord(
-        trial=trial.number, repetition=trial.repetition, stimulus=trial.stimulus,
+        trial=trial.number, repetition=trial.repetition, practice=trial.practice,
+        block=trial.block, stimulus=trial.stimulus,
         condition=trial.levels, question=q.name, answer=resp.answer, correct_answer=right,
         correct=None if right is None else resp.answer == right, rt_s=resp.rt_s,
         replays=len(plays) - 1, stimulus_onset_ms=plays[0].started_at_ms,
