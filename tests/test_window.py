@@ -58,6 +58,11 @@ def xvfb():
     old = os.environ.get("DISPLAY")
     os.environ["DISPLAY"] = f":{n}"
     yield f":{n}"
+    if "psychopy.visual" in sys.modules:      # a failed test may leave its window open
+        from psychopy.visual.window import openWindows
+        for ref in list(openWindows):
+            if ref() is not None:
+                ref().close()
     proc.terminate()
     proc.wait(10)
     if old is None:
@@ -312,6 +317,31 @@ def test_vtexp_imports_without_psychopy_and_says_how_to_install_it():
     assert r.returncode == 2, r.stderr
     assert "pip install -e '.[gui]'" in r.stderr and "opencv-contrib-python-headless" in r.stderr
     assert "Traceback" not in r.stderr and not (ROOT / "unused").exists()
+
+
+def test_importing_psychopy_leaves_home_and_the_environment_alone(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), HOME=str(tmp_path))
+    env.pop("PYTHONUSERBASE", None)
+    env.pop("PSYCHOPYNOPACKAGES", None)
+    code = ("import os, json; from vtexp.responders.window import import_psychopy\n"
+            "import_psychopy()\n"
+            "print(json.dumps({k: os.environ.get(k) for k in ('HOME', 'PYTHONUSERBASE')}))")
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                       timeout=120, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    seen = json.loads(r.stdout.strip().splitlines()[-1])
+    assert seen == {"HOME": str(tmp_path), "PYTHONUSERBASE": None}
+    assert not (tmp_path / ".psychopy3").exists()
+
+
+def test_without_a_display_the_window_says_so_in_one_message(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env.pop("DISPLAY", None)
+    r = subprocess.run([sys.executable, "-m", "vtexp", "run", str(write_experiment(
+        tmp_path, MINIMAL)), "-p", "01", "--responder", "window", "--data", str(tmp_path / "d")],
+        env=env, capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 2 and "DISPLAY" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "d").exists()
 
 
 def test_every_screen_type_was_saved_and_none_is_blank():

@@ -70,27 +70,32 @@ CONTINUE_KEYS = ("space", "return", "num_enter")
 
 
 def import_psychopy():
-    """Import PsychoPy's window parts quietly, or say how to install them."""
-    if "psychopy" not in sys.modules:
-        os.environ.setdefault("PSYCHOPYNOPACKAGES", "1")
-        home = os.environ.get("HOME")
-        redirect = home is not None and not Path(home, ".psychopy3").is_dir()
-        if redirect:
-            scratch = tempfile.mkdtemp(prefix="vtexp-psychopy-")
-            atexit.register(shutil.rmtree, scratch, True)
-            os.environ["HOME"] = scratch
-        try:
-            import psychopy  # noqa: F401
-        except ImportError as e:
-            raise InputError(f"{INSTALL_HELP} (import failed: {e})", key="--responder") from None
-        finally:
-            if redirect:
-                os.environ["HOME"] = home
+    """Import PsychoPy's window parts quietly, or say how to install them.
+
+    PsychoPy computes its preference folder from ``HOME`` when imported and
+    ``psychopy.monitors`` writes a monitor file there; pyglet connects to the
+    display as ``psychopy.event`` is imported.
+    """
+    os.environ.setdefault("PSYCHOPYNOPACKAGES", "1")
+    home = os.environ.get("HOME")
+    redirect = ("psychopy.visual" not in sys.modules and home is not None
+                and not Path(home, ".psychopy3").is_dir())
+    if redirect:
+        scratch = tempfile.mkdtemp(prefix="vtexp-psychopy-")
+        atexit.register(shutil.rmtree, scratch, True)
+        os.environ["HOME"] = scratch
     try:
-        from psychopy import core, event, logging, visual
+        from psychopy import logging
+        logging.console.setLevel(logging.ERROR)
+        from psychopy import core, event, visual
     except ImportError as e:
         raise InputError(f"{INSTALL_HELP} (import failed: {e})", key="--responder") from None
-    logging.console.setLevel(logging.ERROR)
+    except Exception as e:          # pyglet: NoSuchDisplayException, no OpenGL...
+        raise SessionError(f"cannot open the participant window: {type(e).__name__}: {e}. "
+                           "Is a screen attached and DISPLAY set (e.g. DISPLAY=:0)?") from None
+    finally:
+        if redirect:
+            os.environ["HOME"] = home
     return core, event, visual
 
 
