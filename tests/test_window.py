@@ -144,8 +144,10 @@ def responder(**opts):
     return WindowResponder(WindowOptions(fullscreen=False, size=(1024, 768), **opts))
 
 
-def experiment(tmp_path, replays=0):
+def experiment(tmp_path, replays=0, break_every=None):
     text = MINIMAL + (f"  replays: {replays}\n" if replays else "")
+    if break_every:
+        text = text.replace("  iti_ms: 0\n", f"  iti_ms: 0\n  break_every: {break_every}\n")
     return load_experiment(write_experiment(tmp_path, text))
 
 
@@ -162,10 +164,11 @@ def logged(res):
 
 
 def test_a_session_answered_with_keys_and_clicks_is_logged(tmp_path, monkeypatch):
-    lx = experiment(tmp_path)
+    lx = experiment(tmp_path, break_every=2)
     r = responder()
     p = Participant([("instructions", "key", "space"),
                      ("choice", "key", "1"), ("choice", "click", "circle"),
+                     ("break", "click_anywhere"),
                      ("choice", "key", "num_2"), ("choice", "click", "square"),
                      ("end", "key", "space")]).install(monkeypatch, r)
     res, dev = run(lx, tmp_path, r)
@@ -174,7 +177,8 @@ def test_a_session_answered_with_keys_and_clicks_is_logged(tmp_path, monkeypatch
     assert list(beh["answer"]) == ["square", "circle", "circle", "square"]
     rts = beh["rt_s"].astype(float)
     assert (rts >= 0).all() and beh["replays"].eq("0").all()
-    assert p.seen == ["instructions", "ready", "choice"] * 1 + ["ready", "choice"] * 3 + ["end"]
+    assert p.seen == ["instructions", "ready", "choice", "ready", "choice", "break",
+                      "ready", "choice", "ready", "choice", "end"]
     assert r.win is None                     # the end screen closed the window
     for png in SCREENS.glob("*.png"):
         assert_not_blank(png)
