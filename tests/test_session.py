@@ -443,3 +443,29 @@ def test_disk_full_stops_before_the_next_trial_with_the_reason(tmp_path, minimal
 
 def paths_events_complete(d) -> bool:
     return next(d.glob("*_events.tsv")).read_bytes().endswith(b"\n")
+
+
+def test_retry_while_still_unplugged_asks_again(tmp_path, minimal_yaml):
+    from vtexp.errors import DeviceError
+    lx = load_experiment(write_experiment(tmp_path, minimal_yaml))
+    flaky = _FlakyDevice(DeviceProfile.load("vest_6x8"), fail_on={2})
+    real_open = flaky.dev._open
+    opens = {"n": 0}
+
+    def open_once_failing():
+        opens["n"] += 1
+        if opens["n"] == 2:                       # the first reconnection attempt fails
+            raise DeviceError("no device on the port (test)")
+        return real_open()
+    flaky.dev._open = open_once_failing
+    answers = iter(["retry", "retry"])
+    asked = []
+
+    def handler(error, trial):
+        asked.append(str(error))
+        return next(answers)
+    res = run_session(lx, "01", 1, flaky.dev, make_responder("scripted:correct", "01", 1),
+                      tmp_path / "d", on_device_error=handler)
+    assert res.status == "completed" and [r.status for r in res.records] == ["ok"] * 4
+    assert asked == ["lost contact with the tactile device (test)",
+                     "no device on the port (test)"]

@@ -361,10 +361,20 @@ def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Respond
         try:
             return _run_trial(exp, trial, device, responder)
         except DeviceError as e:
-            choice = on_device_error(e, trial) if on_device_error else "abort"
+            error = e
+            choice = on_device_error(error, trial) if on_device_error else "abort"
+            while choice == "retry":
+                try:
+                    device.close()
+                except DeviceError:
+                    pass                # it was lost; closing releases what is left
+                try:
+                    device.open()
+                    break
+                except DeviceError as again:    # still unplugged: ask again
+                    error = again
+                    choice = on_device_error(error, trial)
             if choice == "retry":
-                device.close()
-                device.open()       # raises DeviceError again if it is still unreachable
                 continue
             if choice == "skip":
                 rec = TrialRecord(trial=trial.number, repetition=trial.repetition,
@@ -374,7 +384,7 @@ def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Respond
                                   correct_answer=correct_answer(exp.question, trial),
                                   correct=None, status="device_error", started_at=started)
                 return rec, []
-            raise
+            raise error
 
 
 def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
