@@ -107,3 +107,21 @@ def test_six_mode_study_end_to_end_with_its_papers_analyses(cli, tmp_path):
     assert "timing × intensity (display = dynamic): effect of timing: F(1, 2)" in r.stdout
     assert "Simple effect of intensity at timing = varied (display = dynamic)" in r.stdout
     assert "effect of display: F(1, 2)" in r.stdout
+
+
+def test_circle_vs_rectangle_ratings_end_to_end(cli, tmp_path):
+    study = GRID.parent / "circle_vs_rectangle.yaml"
+    for p in ("01", "02", "03"):
+        r = cli("run", str(study), "-p", p, "--responder", "scripted:random", "--data",
+                str(tmp_path), "--quiet")
+        assert r.returncode == 0, r.stderr
+    tsv = next((tmp_path / "circle_vs_rectangle").rglob("*_beh.tsv"))
+    beh = pd.read_csv(tsv, sep="\t", keep_default_na=False)
+    assert set(beh["answer"].astype(int)) <= {-2, -1, 0, 1, 2}
+    assert (beh["correct"] == "n/a").all()                   # ratings are not scored
+    side = json.loads(next((tmp_path / "circle_vs_rectangle").rglob("*_beh.json")).read_text())
+    assert side["answer"]["Levels"]["-2"] == "rectangle"
+    r = cli("analyze", str(tmp_path / "circle_vs_rectangle"), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    assert "Rating, shape × corners: effect of corners: F(1, 2)" in r.stdout
+    assert "Friedman test of shape on the rating" in r.stdout

@@ -219,3 +219,46 @@ def test_condition_lists_are_checked(tmp_path, condition, needle, key):
     text = text[:start] + f"  conditions:\n    - {condition}\n" + text[end:]
     e = error_of(tmp_path, text)
     assert needle in e.message and e.key == key and e.line is not None
+
+
+def test_rating_and_number_questions(tmp_path, minimal_yaml):
+    rating = minimal_yaml.replace('''question:
+  prompt: Which shape?
+  options: [square, circle]
+  correct: "{shape}"''', '''question:
+  kind: rating
+  prompt: Circle or square?
+  low: -2
+  high: 2
+  labels: {-2: square, 2: circle}''')
+    q = load(tmp_path, rating).experiment.question
+    assert q.kind == "rating" and q.options == ["-2", "-1", "0", "1", "2"]
+    assert q.scale == [-2, -1, 0, 1, 2] and q.labels[-2] == "square"
+    e = error_of(tmp_path, rating.replace("low: -2", "low: 3"))
+    assert e.key == "question" and "low < high" in e.message
+    e = error_of(tmp_path, rating.replace("high: 2", "hihg: 2"))
+    # The misspelt key leaves 'high' missing: both are reported, the missing one first.
+    assert e.key == "question.high" and "required" in e.message and "1 more" in e.message
+    number = minimal_yaml.replace('''question:
+  prompt: Which shape?
+  options: [square, circle]
+  correct: "{shape}"''', '''question:
+  kind: number
+  prompt: How many turns?
+  maximum: 10''')
+    q = load(tmp_path, number).experiment.question
+    assert q.kind == "number" and q.options[-1] == "10"
+    e = error_of(tmp_path, number.replace("maximum: 10", "maximum: ten"))
+    assert e.key == "question.maximum" and "integer" in e.message
+
+
+def test_circle_vs_rectangle_study_validates():
+    from vtexp.compile import compile_conditions
+    lx = load_experiment(SIX.parent / "circle_vs_rectangle.yaml")
+    conds = compile_conditions(lx)
+    assert len(conds) == 4 and lx.experiment.question.kind == "rating"
+    plain = next(c for c in conds if c.levels == {"shape": "rectangle", "corners": "plain"})
+    emph = next(c for c in conds if c.levels == {"shape": "rectangle",
+                                                  "corners": "emphasised"})
+    assert max(p.train.pulse_width_ms for p in plain.schedule.pulses) == 1.0
+    assert max(p.train.pulse_width_ms for p in emph.schedule.pulses) == 1.5    # Table 4

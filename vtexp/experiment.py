@@ -14,7 +14,8 @@ import hashlib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, Field, ValidationError, field_validator, model_validator
+from pydantic import (AfterValidator, Discriminator, Field, Tag, ValidationError,
+                      field_validator, model_validator)
 from typing_extensions import Self
 
 from .analysis.spec import AnalysisSpec, check_factor_references
@@ -154,6 +155,77 @@ class ChoiceQuestion(Model):
         return self
 
 
+class RatingQuestion(Model):
+    """A rating on a scale of whole numbers from ``low`` to ``high`` (seed 002: 0..4, -2..+2)."""
+
+    kind: Literal["rating"]
+    name: Annotated[str, Field(pattern=NAME)] = "rating"
+    prompt: str
+    low: int
+    high: int
+    labels: dict[int, str] = Field(
+        default_factory=dict, description="words shown under scale points, e.g. the ends")
+    correct: str | None = Field(
+        None, description="the correct rating, literal or '{factor}'; none if unscored")
+    replays: Annotated[int, Field(ge=0)] = 0
+
+    @model_validator(mode="after")
+    def _scale(self) -> Self:
+        if not self.low < self.high or self.high - self.low > 20:
+            raise ValueError("a rating scale needs low < high and at most 21 points")
+        outside = [k for k in self.labels if not self.low <= k <= self.high]
+        if outside:
+            raise ValueError(f"label for {outside[0]} is outside the scale {self.low}..{self.high}")
+        return self
+
+    @property
+    def scale(self) -> list[int]:
+        return list(range(self.low, self.high + 1))
+
+    @property
+    def options(self) -> list[str]:
+        return [str(v) for v in self.scale]
+
+
+class NumberQuestion(Model):
+    """A whole number the participant types in (seed 002: the turns of a whirlpool)."""
+
+    kind: Literal["number"]
+    name: Annotated[str, Field(pattern=NAME)] = "count"
+    prompt: str
+    minimum: int = 0
+    maximum: int = 99
+    correct: str | None = Field(
+        None, description="the correct number, literal or '{factor}'; none if unscored")
+    replays: Annotated[int, Field(ge=0)] = 0
+
+    @model_validator(mode="after")
+    def _range(self) -> Self:
+        if not self.minimum <= self.maximum or self.maximum - self.minimum > 10000:
+            raise ValueError("a number question needs minimum <= maximum (at most 10000 apart)")
+        return self
+
+    @property
+    def options(self) -> list[str]:
+        return [str(v) for v in range(self.minimum, self.maximum + 1)]
+
+
+QUESTION_KINDS = ("choice", "rating", "number")
+
+
+def _question_kind(value: Any) -> str:
+    if isinstance(value, dict):
+        kind = value.get("kind", "choice")
+        return kind if kind in QUESTION_KINDS else "choice"
+    return getattr(value, "kind", "choice")
+
+
+Question = Annotated[
+    Annotated[ChoiceQuestion, Tag("choice")] | Annotated[RatingQuestion, Tag("rating")]
+    | Annotated[NumberQuestion, Tag("number")],
+    Discriminator(_question_kind)]
+
+
 class Experiment(Model):
     name: Annotated[str, Field(pattern=NAME, max_length=64)] = Field(
         description="lower-case identifier; names the data folder")
@@ -168,7 +240,7 @@ class Experiment(Model):
     coding: CodingSpec
     factors: dict[Annotated[str, Field(pattern=NAME)], FactorSpec] = Field(min_length=1)
     design: DesignSpec
-    question: ChoiceQuestion
+    question: Question
     analysis: Annotated[AnalysisSpec | None, AfterValidator(check_factor_references)] = Field(
         None, description="the analyses of the report (vtexp/analysis/spec.py)")
 

@@ -132,8 +132,7 @@ def sidecar(lx: LoadedExperiment) -> dict:
     cols.update({
         "stimulus": {"Description": "name of the stimulus in the experiment file"},
         "question": {"Description": "name of the question answered"},
-        "answer": {"Description": "the option chosen", "Levels": {o: o for o in
-                                                                 exp.question.options}},
+        "answer": _answer_description(exp.question),
         "correct_answer": {"Description": "the option scored as correct, n/a if unscored"},
         "correct": {"Description": "1 if answer equals correct_answer, 0 if not, n/a if "
                                    "unscored"},
@@ -151,6 +150,15 @@ def sidecar(lx: LoadedExperiment) -> dict:
     return {"TaskName": exp.title, "TaskDescription": exp.description.strip(),
             "Instructions": exp.instructions.strip() or exp.question.prompt,
             "vtexpTask": exp.name, **cols}
+
+
+def _answer_description(q) -> dict:
+    if q.kind == "rating":
+        return {"Description": f"the rating, from {q.low} to {q.high}",
+                "Levels": {str(v): q.labels.get(v, str(v)) for v in q.scale}}
+    if q.kind == "number":
+        return {"Description": f"the number given, from {q.minimum} to {q.maximum}"}
+    return {"Description": "the option chosen", "Levels": {o: o for o in q.options}}
 
 
 def environment() -> dict:

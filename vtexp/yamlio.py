@@ -123,6 +123,9 @@ def format_validation_error(exc, loaded: LoadedYaml, root: KeyPath = ()) -> Inpu
     errors = exc.errors(include_url=False)
     err = errors[0]
     loc = tuple(x for x in err["loc"] if not _is_union_tag(x))
+    # A question's kind appears in the location as a tag: question.rating.low -> question.low
+    if len(loc) > 1 and loc[0] == "question" and loc[1] in ("choice", "rating", "number"):
+        loc = loc[:1] + loc[2:]
     full = root + loc
     key = ".".join(str(x) for x in full) or None
     msg = _message(err)
