@@ -356,3 +356,16 @@ def test_every_screen_type_was_saved_and_none_is_blank():
     assert expected <= saved, f"screens never shown: {sorted(expected - saved)}"
     for png in sorted(SCREENS.glob("*.png")):
         assert_not_blank(png)
+
+
+def test_the_schemas_rating_and_number_questions_reach_their_screens(monkeypatch):
+    from vtexp.experiment import NumberQuestion, RatingQuestion
+    r = responder()
+    Participant([("rating", "key", "1"), ("number", "key", "7"),
+                 ("number", "key", "return")]).install(monkeypatch, r)
+    rating = RatingQuestion(kind="rating", prompt="Circle or rectangle?", low=-2, high=2,
+                            labels={-2: "rectangle", 2: "circle"})
+    number = NumberQuestion(kind="number", prompt="How many turns?", maximum=20)
+    assert r.ask(rating, None, None).answer == "-2"
+    assert r.ask(number, None, None).answer == "7"
+    r.close()

@@ -461,12 +461,12 @@ def _choice(r: WindowResponder, q, replay):
     return r.ask_choice(q.prompt, q.options, replay, q.replays)
 
 
-def _rating(r: WindowResponder, q, replay):     # for the schema's RatingQuestion to come
+def _rating(r: WindowResponder, q, replay):     # vtexp.experiment.RatingQuestion
     return r.ask_rating(q.prompt, q.scale, dict(getattr(q, "labels", {}) or {}), replay,
                         getattr(q, "replays", 0))
 
 
-def _number(r: WindowResponder, q, replay):     # for the schema's NumberQuestion to come
+def _number(r: WindowResponder, q, replay):     # vtexp.experiment.NumberQuestion
     return r.ask_number(q.prompt, getattr(q, "minimum", 0), getattr(q, "maximum", 99), replay,
                         getattr(q, "replays", 0))
 
