@@ -262,3 +262,12 @@ def test_circle_vs_rectangle_study_validates():
                                                   "corners": "emphasised"})
     assert max(p.train.pulse_width_ms for p in plain.schedule.pulses) == 1.0
     assert max(p.train.pulse_width_ms for p in emph.schedule.pulses) == 1.5    # Table 4
+
+
+def test_letters_study_traces_every_letter():
+    from vtexp.compile import compile_conditions
+    lx = load_experiment(SIX.parent / "letters.yaml")
+    conds = compile_conditions(lx)
+    assert [c.stimulus for c in conds] == [chr(c) for c in range(ord("A"), ord("Z") + 1)]
+    assert all(len(c.pattern.points) >= 3 for c in conds)
+    assert lx.experiment.question.correct == "{letter}"
