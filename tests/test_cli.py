@@ -125,3 +125,16 @@ def test_circle_vs_rectangle_ratings_end_to_end(cli, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "Rating, shape × corners: effect of corners: F(1, 2)" in r.stdout
     assert "Friedman test of shape on the rating" in r.stdout
+
+
+def test_whirlpool_two_questions_end_to_end(cli, tmp_path):
+    study = GRID.parent / "whirlpool.yaml"
+    for p in ("01", "02", "03"):
+        r = cli("run", str(study), "-p", p, "--responder", "scripted:random", "--data",
+                str(tmp_path), "--quiet")
+        assert r.returncode == 0, r.stderr
+        assert "18 trials logged" in r.stdout
+    r = cli("analyze", str(tmp_path / "whirlpool"), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    assert "phantom × frequency (question = sensation): effect of phantom: F(1, 2)" in r.stdout
+    assert "Friedman test of frequency on the rating (question = sensation)" in r.stdout

@@ -469,3 +469,32 @@ def test_retry_while_still_unplugged_asks_again(tmp_path, minimal_yaml):
     assert res.status == "completed" and [r.status for r in res.records] == ["ok"] * 4
     assert asked == ["lost contact with the tactile device (test)",
                      "no device on the port (test)"]
+
+
+WHIRL = GRID.parent / "whirlpool.yaml"
+
+
+def test_several_questions_give_one_row_each_and_resume_by_whole_trials(tmp_path):
+    lx = load_experiment(WHIRL)
+    answers = iter(["3", "2", "4", "3"])          # (sensation, turns) for trials 1 and 2
+
+    def rule(q, t):
+        if t.number == 2 and q.name == "turns":
+            raise RuntimeError("participant left")  # cut between the two questions
+        return next(answers)
+    with pytest.raises(RuntimeError):
+        run(lx, tmp_path, responder=ScriptedResponder(rule))
+    paths = SessionPaths.of(tmp_path, "whirlpool", "whirlpool", "01", 1)
+    rows = pd.read_csv(paths.beh_tsv, sep="\t", dtype=str)
+    assert list(zip(rows["trial"], rows["question"], rows["answer"])) == [
+        ("1", "sensation", "3"), ("1", "turns", "2")]   # trial 2's one answer was not kept
+    with open_device("sim", DeviceProfile.load("sma_5x5")) as dev:
+        res = run_session(lx, "01", 1, dev,
+                          ScriptedResponder(lambda q, t: "1" if q.name == "sensation" else "3"),
+                          tmp_path, resume=True)
+    assert res.status == "completed" and res.records[0].trial == 2
+    rows = pd.read_csv(paths.beh_tsv, sep="\t", dtype=str)
+    assert len(rows) == 2 * 18 and list(rows["trial"][:4]) == ["1", "1", "2", "2"]
+    assert list(rows["question"][:4]) == ["sensation", "turns", "sensation", "turns"]
+    side = json.loads(paths.beh_json.read_text())
+    assert set(side["question"]["Levels"]) == {"sensation", "turns"}

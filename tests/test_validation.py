@@ -271,3 +271,26 @@ def test_letters_study_traces_every_letter():
     assert [c.stimulus for c in conds] == [chr(c) for c in range(ord("A"), ord("Z") + 1)]
     assert all(len(c.pattern.points) >= 3 for c in conds)
     assert lx.experiment.question.correct == "{letter}"
+
+
+def test_several_questions_are_checked(tmp_path, minimal_yaml):
+    both = minimal_yaml + """questions:
+  - {prompt: "Which?", options: [square, circle]}
+"""
+    e = error_of(tmp_path, both)
+    assert "'question' (one question) or 'questions'" in e.message
+    twice = minimal_yaml.replace('''question:
+  prompt: Which shape?
+  options: [square, circle]
+  correct: "{shape}"''', '''questions:
+  - {prompt: "Which shape?", options: [square, circle], correct: "{shape}"}
+  - {kind: rating, prompt: "How sure?", low: 1, high: 5}
+  - {kind: number, name: rating, prompt: "How many?"}''')
+    e = error_of(tmp_path, twice)
+    assert "question names must differ" in e.message
+    bad = twice.replace("name: rating, ", "")
+    lx = load(tmp_path, bad)
+    assert [q.name for q in lx.experiment.asked()] == ["response", "rating", "count"]
+    wrong = bad.replace('correct: "{shape}"', 'correct: "{shap}"')
+    e = error_of(tmp_path, wrong)
+    assert e.key == "questions.0.correct"

@@ -63,7 +63,7 @@ def cmd_plan(args) -> int:
     factors = list(exp.factors)
     cols = ["trial", *factors, "stimulus", "repetition", "correct_answer", "duration_ms"]
     rows = [[str(t.number), *(t.levels[f] for f in factors), t.stimulus, str(t.repetition),
-             correct_answer(exp.question, t) or "n/a", f"{t.condition.schedule.duration_ms:.0f}"]
+             correct_answer(exp.asked()[0], t) or "n/a", f"{t.condition.schedule.duration_ms:.0f}"]
             for t in trials]
     if args.format == "tsv":
         _out("\t".join(cols))
@@ -145,7 +145,8 @@ def cmd_run(args) -> int:
     res = _run_one(lx, args.participant, args.session, args.device, args.responder,
                    args.data, args.quiet, resume=args.resume)
     acc = [r.correct for r in res.records if r.correct is not None]
-    _out(f"session {res.status}: {len(res.records)} trials logged in {res.paths.dir}"
+    n = len({r.trial for r in res.records})
+    _out(f"session {res.status}: {n} trials logged in {res.paths.dir}"
          + (f"; {sum(acc)}/{len(acc)} correct" if acc else ""))
     return 0
 

@@ -240,9 +240,28 @@ class Experiment(Model):
     coding: CodingSpec
     factors: dict[Annotated[str, Field(pattern=NAME)], FactorSpec] = Field(min_length=1)
     design: DesignSpec
-    question: Question
+    question: Question | None = Field(
+        None, description="the question asked after each stimulus (or 'questions')")
+    questions: list[Question] | None = Field(
+        None, description="several questions asked in turn about one stimulus")
     analysis: Annotated[AnalysisSpec | None, AfterValidator(check_factor_references)] = Field(
         None, description="the analyses of the report (vtexp/analysis/spec.py)")
+
+    @model_validator(mode="after")
+    def _one_question_key(self) -> Self:
+        if (self.question is None) == (self.questions is None):
+            raise ValueError("give 'question' (one question) or 'questions' (a list), "
+                             "not both or neither")
+        names = [q.name for q in self.asked()]
+        if not names:
+            raise ValueError("'questions' is empty")
+        if len(set(names)) != len(names):
+            raise ValueError(f"question names must differ (got {names}); set 'name:'")
+        return self
+
+    def asked(self) -> list:
+        """The questions asked after each stimulus, in order."""
+        return [self.question] if self.question is not None else list(self.questions or [])
 
     @property
     def task_label(self) -> str:
@@ -384,7 +403,12 @@ def _check(lx: LoadedExperiment) -> None:
             _validate_params(lx, model, {**base, **f.params_of(level)}, kp,
                              only=set(f.params_of(level)), fallback=(f.sets, "params"))
 
-    q = exp.question
+    for qi, q in enumerate(exp.asked()):
+        _check_correct(lx, q, ("question",) if exp.question is not None else ("questions", qi))
+
+
+def _check_correct(lx: LoadedExperiment, q, where: KeyPath) -> None:
+    exp = lx.experiment
     if q.correct is not None:
         c = q.correct
         if c.startswith("{") and c.endswith("}"):
@@ -396,13 +420,13 @@ def _check(lx: LoadedExperiment) -> None:
             else:
                 raise lx.error(f"{c!r} names no factor; use '{{factor}}' with one of "
                                f"{', '.join(exp.factors)}, or '{{stimulus}}'",
-                               ("question", "correct"))
+                               where + ("correct",))
             missing = [v for v in values if v not in q.options]
             if missing:
                 raise lx.error(f"the correct answers {missing} are not among the options "
-                               f"{q.options}", ("question", "correct"))
+                               f"{q.options}", where + ("correct",))
         elif c not in q.options:
-            raise lx.error(f"{c!r} is not one of the options {q.options}", ("question", "correct"))
+            raise lx.error(f"{c!r} is not one of the options {q.options}", where + ("correct",))
 
 
 def _validate_params(lx: LoadedExperiment, model, params: dict, keypath: KeyPath,

@@ -3,7 +3,7 @@
 One folder per session, following the BIDS behavioural convention::
 
     DATA/<experiment>/sub-<P>/ses-<N>/
-        sub-<P>_ses-<N>_task-<T>_beh.tsv     one row per trial (append + fsync)
+        sub-<P>_ses-<N>_task-<T>_beh.tsv     one row per trial and question (append + fsync)
         sub-<P>_ses-<N>_task-<T>_beh.json    column descriptions, TaskName, Instructions
         sub-<P>_ses-<N>_task-<T>_events.tsv  every pulse the device reported playing
         session.json                         what produced the session, and how it ended
@@ -131,8 +131,9 @@ def sidecar(lx: LoadedExperiment) -> dict:
                                       if f.params_of(lv) else lv) for lv in f.level_names}}
     cols.update({
         "stimulus": {"Description": "name of the stimulus in the experiment file"},
-        "question": {"Description": "name of the question answered"},
-        "answer": _answer_description(exp.question),
+        "question": {"Description": "name of the question answered (one row per question)",
+                     "Levels": {q.name: q.prompt for q in exp.asked()}},
+        "answer": _answer_description(exp.asked()),
         "correct_answer": {"Description": "the option scored as correct, n/a if unscored"},
         "correct": {"Description": "1 if answer equals correct_answer, 0 if not, n/a if "
                                    "unscored"},
@@ -148,11 +149,16 @@ def sidecar(lx: LoadedExperiment) -> dict:
         "started_at": {"Description": "wall-clock start of the trial, ISO 8601"},
     })
     return {"TaskName": exp.title, "TaskDescription": exp.description.strip(),
-            "Instructions": exp.instructions.strip() or exp.question.prompt,
+            "Instructions": exp.instructions.strip() or exp.asked()[0].prompt,
             "vtexpTask": exp.name, **cols}
 
 
-def _answer_description(q) -> dict:
+def _answer_description(questions: list) -> dict:
+    if len(questions) > 1:
+        return {"Description": "the answer to the row's question: "
+                + "; ".join(f"{q.name}: " + _answer_description([q])["Description"]
+                            for q in questions)}
+    q = questions[0]
     if q.kind == "rating":
         return {"Description": f"the rating, from {q.low} to {q.high}",
                 "Levels": {str(v): q.labels.get(v, str(v)) for v in q.scale}}
@@ -258,9 +264,9 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     status, reason = "failed", None
     try:
         call_hook(responder, "resume_at", done)
-        call_hook(responder, "instructions", exp.instructions.strip() or exp.question.prompt)
+        call_hook(responder, "instructions", exp.instructions.strip() or exp.asked()[0].prompt)
         for trial in trials[done:]:
-            rec, plays = _run_trial_pausing(exp, trial, device, responder, on_device_error)
+            recs, plays = _run_trial_pausing(exp, trial, device, responder, on_device_error)
             # The device events first, the trial's row last: the row is what makes a
             # trial complete, so a trial cut short leaves no row and is played again.
             for i, rep in enumerate(plays):
@@ -272,12 +278,14 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                                    "amplitude_v": p.train.amplitude_v if p.train else None,
                                    "frequency_hz": p.train.frequency_hz if p.train else None,
                                    "pulse_width_ms": p.train.pulse_width_ms if p.train else None})
-            beh.append({**{f: trial.levels[f] for f in factors},
-                        **rec.model_dump(exclude={"condition"})})
-            result.records.append(rec)
-            record["n_trials_logged"] = done + len(result.records)
-            for sink in sinks:
-                sink(rec, trial, len(trials))
+            for rec in recs:                     # one row per question, the trial's last
+                beh.append({**{f: trial.levels[f] for f in factors},
+                            **rec.model_dump(exclude={"condition"})})
+            result.records.extend(recs)
+            record["n_trials_logged"] = trial.number
+            for rec in recs:
+                for sink in sinks:
+                    sink(rec, trial, len(trials))
             _wait(device, exp.design.iti_ms)
             _maybe_break(exp, trial, trials, responder)
         call_hook(responder, "finish", "Thank you. The session is over.")
@@ -296,7 +304,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
             beh.close()
             events.close()
             record.update(status=status, reason=reason, ended_at=now_iso(),
-                          n_trials_logged=done + len(result.records),
+                          n_trials_logged=done + len({r.trial for r in result.records}),
                           checksums={f.name: sha256_file(f) for f in
                                      (paths.beh_tsv, paths.beh_json, paths.events_tsv)})
             write_json_atomic(paths.session_json, record)
@@ -337,14 +345,18 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed
                            "differ); it cannot be resumed")
     beh, rows, cut_beh = TsvLog.reopen(paths.beh_tsv, trial_columns(factors))
     cols = trial_columns(factors)
-    for k, row in enumerate(rows, start=1):
+    per_trial = len(lx.experiment.asked())          # one row per question
+    for i, row in enumerate(rows):
+        k = i // per_trial + 1
         t = trials[k - 1] if k <= len(trials) else None
         if t is None or row[cols.index("trial")] != str(k) or \
                 any(row[cols.index(f)] != t.levels[f] for f in factors):
             beh.close()
-            raise SessionError(f"row {k} of {paths.beh_tsv} does not match the planned trial "
-                               f"{k}; the log cannot be resumed")
-    done = len(rows)
+            raise SessionError(f"row {i + 1} of {paths.beh_tsv} does not match the planned "
+                               f"trial {k}; the log cannot be resumed")
+    done = len(rows) // per_trial
+    if len(rows) % per_trial:                        # a trial cut short between questions
+        beh.truncate_rows(done * per_trial)
     events, erows, cut_ev = TsvLog.reopen(paths.events_tsv, EVENT_COLUMNS)
     keep = sum(1 for r in erows if int(r[0]) <= done)
     if keep < len(erows):
@@ -362,7 +374,7 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed
 
 def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Responder,
                        on_device_error: DeviceFaultHandler | None
-                       ) -> tuple[TrialRecord, list[PlayReport]]:
+                       ) -> tuple[list[TrialRecord], list[PlayReport]]:
     """A trial, with the experimenter's choice when the device fails during it."""
     while True:
         started = now_iso()
@@ -385,42 +397,45 @@ def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Respond
             if choice == "retry":
                 continue
             if choice == "skip":
-                rec = TrialRecord(trial=trial.number, repetition=trial.repetition,
-                                  practice=trial.practice, block=trial.block,
-                                  stimulus=trial.stimulus, condition=trial.levels,
-                                  question=exp.question.name, answer=None,
-                                  correct_answer=correct_answer(exp.question, trial),
-                                  correct=None, status="device_error", started_at=started)
-                return rec, []
+                return [TrialRecord(trial=trial.number, repetition=trial.repetition,
+                                    practice=trial.practice, block=trial.block,
+                                    stimulus=trial.stimulus, condition=trial.levels,
+                                    question=q.name, answer=None,
+                                    correct_answer=correct_answer(q, trial),
+                                    correct=None, status="device_error", started_at=started)
+                        for q in exp.asked()], []
             raise error
 
 
 def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
-               ) -> tuple[TrialRecord, list[PlayReport]]:
+               ) -> tuple[list[TrialRecord], list[PlayReport]]:
+    """Play the stimulus, then ask each question in turn: one record per question."""
     started = now_iso()
     schedule = trial.condition.schedule
     call_hook(responder, "stimulus_starts", trial)
     plays = [device.play(schedule)]
-    q = exp.question
+    records = []
+    for q in exp.asked():
+        before = len(plays)
 
-    def replay() -> PlayReport:
-        if len(plays) - 1 >= q.replays:
-            raise SessionError(f"trial {trial.number}: no replays left "
-                               f"(the question allows {q.replays})")
-        plays.append(device.play(schedule))
-        return plays[-1]
+        def replay(q=q, before=before) -> PlayReport:
+            if len(plays) - before >= q.replays:
+                raise SessionError(f"trial {trial.number}: no replays left "
+                                   f"(the question allows {q.replays})")
+            plays.append(device.play(schedule))
+            return plays[-1]
 
-    resp = responder.ask(q, trial, replay if q.replays > 0 else None)
-    right = correct_answer(q, trial)
-    rec = TrialRecord(
-        trial=trial.number, repetition=trial.repetition, practice=trial.practice,
-        block=trial.block, stimulus=trial.stimulus,
-        condition=trial.levels, question=q.name, answer=resp.answer, correct_answer=right,
-        correct=None if right is None else resp.answer == right, rt_s=resp.rt_s,
-        replays=len(plays) - 1, stimulus_onset_ms=plays[0].started_at_ms,
-        stimulus_duration_ms=plays[0].duration_ms, n_pulses=len(plays[0].pulses),
-        started_at=started)
-    return rec, plays
+        resp = responder.ask(q, trial, replay if q.replays > 0 else None)
+        right = correct_answer(q, trial)
+        records.append(TrialRecord(
+            trial=trial.number, repetition=trial.repetition, practice=trial.practice,
+            block=trial.block, stimulus=trial.stimulus,
+            condition=trial.levels, question=q.name, answer=resp.answer, correct_answer=right,
+            correct=None if right is None else resp.answer == right, rt_s=resp.rt_s,
+            replays=len(plays) - before, stimulus_onset_ms=plays[0].started_at_ms,
+            stimulus_duration_ms=plays[0].duration_ms, n_pulses=len(plays[0].pulses),
+            started_at=started))
+    return records, plays
 
 
 def _wait(device: DeviceBase, ms: float) -> None:

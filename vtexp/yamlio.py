@@ -126,6 +126,8 @@ def format_validation_error(exc, loaded: LoadedYaml, root: KeyPath = ()) -> Inpu
     # A question's kind appears in the location as a tag: question.rating.low -> question.low
     if len(loc) > 1 and loc[0] == "question" and loc[1] in ("choice", "rating", "number"):
         loc = loc[:1] + loc[2:]
+    elif len(loc) > 2 and loc[0] == "questions" and loc[2] in ("choice", "rating", "number"):
+        loc = loc[:2] + loc[3:]
     full = root + loc
     key = ".".join(str(x) for x in full) or None
     msg = _message(err)

@@ -284,21 +284,23 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
             T[f"posthoc_{i + 1}"] = run(pairwise_tests, m, p.dv, within, "participant",
                                         factor=p.factor, by=p.by, padjust=p.padjust)
         for i, o in enumerate(spec.ordinal):
-            m = participant_measures(sub, o.dv, [o.factor])
+            m = participant_measures(_subset(sub, o.where), o.dv, [o.factor])
             fr = run(friedman, m, o.dv, o.factor, "participant")
             T[f"friedman_{i + 1}"] = fr
             T[f"wilcoxon_{i + 1}"] = run(wilcoxon_pairwise, m, o.dv, o.factor, "participant",
                                          padjust=o.padjust)
             r = fr.iloc[0]
             res.sentences.append(
-                f"Friedman test of {o.factor} on the {MEASURE_LABEL[o.dv]}: χ²({_df(r['df'])}, "
+                f"Friedman test of {o.factor} on the {MEASURE_LABEL[o.dv]}"
+                f"{_where_text(o.where)}: χ²({_df(r['df'])}, "
                 f"N = {int(r['n'])}) = {_fixed(r['Q'])}, {format_p(r['p'])}, Kendall's W = "
                 f"{_num2(r['kendall_W'])}.")
 
     if spec.confusion is not None and scored:
         by = spec.confusion.by
-        labels = list(mine[-1].meta.get("experiment_loaded", {}).get("question", {})
-                      .get("options", [])) or None
+        loaded = mine[-1].meta.get("experiment_loaded", {})
+        first = loaded.get("question") or (loaded.get("questions") or [{}])[0]
+        labels = list((first or {}).get("options", [])) or None
         T["confusion"] = confusion_matrix(sub, by, labels=labels)
         T["information_transfer"] = information_transfer(sub, by, labels=labels)
         T["agreement"] = agreement(sub, by, labels=labels)

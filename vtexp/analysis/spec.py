@@ -87,6 +87,8 @@ class OrdinalSpec(Model):
     factor: str
     dv: Measure = "answer"
     padjust: Literal["holm", "bonferroni"] = "holm"
+    where: dict[str, str | list[str]] = Field(
+        default_factory=dict, description="only these rows, e.g. {question: whirlpool}")
 
 
 class MixedModelSpec(Model):
@@ -147,7 +149,9 @@ class AnalysisSpec(Model):
             refs += [("table.rows", self.table.rows), ("table.columns", self.table.columns)]
         if self.confusion:
             refs += [("confusion.by", f) for f in self.confusion.by]
-        refs += [(f"ordinal[{i}].factor", o.factor) for i, o in enumerate(self.ordinal)]
+        for i, o in enumerate(self.ordinal):
+            refs += [(f"ordinal[{i}].factor", o.factor)]
+            refs += [(f"ordinal[{i}].where", f) for f in o.where]
         if self.mixed_model:
             refs += [("mixed_model.factors", f) for f in self.mixed_model.factors or []]
         if self.figure:
@@ -157,9 +161,10 @@ class AnalysisSpec(Model):
 
     def unknown_factors(self, factors: list[str]) -> list[str]:
         """Messages for every factor name that is not one of ``factors``."""
+        # 'question' is a column too: where: {question: NAME} picks one question's rows.
         return [f"analysis.{where}: {name!r} is not a factor of this experiment (factors: "
                 f"{', '.join(factors)})" for where, name in self.references()
-                if name not in factors]
+                if name not in factors and not (where.endswith(".where") and name == "question")]
 
 
 def check_factor_references(spec: AnalysisSpec | None, info: ValidationInfo) -> Any:
