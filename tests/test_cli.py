@@ -107,6 +107,7 @@ def test_six_mode_study_end_to_end_with_its_papers_analyses(cli, tmp_path):
     assert "timing × intensity (display = dynamic): effect of timing: F(1, 2)" in r.stdout
     assert "Simple effect of intensity at timing = varied (display = dynamic)" in r.stdout
     assert "effect of display: F(1, 2)" in r.stdout
+    _reanalysis_script_runs("six_mode_ball", tmp_path, "Recognition rate (%) per mode")
 
 
 def test_circle_vs_rectangle_ratings_end_to_end(cli, tmp_path):
@@ -125,6 +126,7 @@ def test_circle_vs_rectangle_ratings_end_to_end(cli, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "Rating, shape × corners: effect of corners: F(1, 2)" in r.stdout
     assert "Friedman test of shape on the rating" in r.stdout
+    _reanalysis_script_runs("circle_vs_rectangle", tmp_path, "Mean rating per shape")
 
 
 def test_whirlpool_two_questions_end_to_end(cli, tmp_path):
@@ -138,3 +140,17 @@ def test_whirlpool_two_questions_end_to_end(cli, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "phantom × frequency (question = sensation): effect of phantom: F(1, 2)" in r.stdout
     assert "Friedman test of frequency on the rating (question = sensation)" in r.stdout
+    _reanalysis_script_runs("whirlpool", tmp_path, "Mean turns counted")
+
+
+def _reanalysis_script_runs(study: str, data, heading: str) -> None:
+    import subprocess
+    import sys
+    from conftest import ROOT
+    r = subprocess.run([sys.executable, str(ROOT / "analysis" / f"{study}.py"),
+                        str(data / study), "--out", str(data / "tables")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert heading in r.stdout and "(3 participants)" in r.stdout
+    assert "Analyses declared in the experiment file:" in r.stdout
+    assert list((data / "tables").glob(f"{study}_table_*.csv"))
