@@ -154,3 +154,17 @@ def _reanalysis_script_runs(study: str, data, heading: str) -> None:
     assert heading in r.stdout and "(3 participants)" in r.stdout
     assert "Analyses declared in the experiment file:" in r.stdout
     assert list((data / "tables").glob(f"{study}_table_*.csv"))
+
+
+def test_schema_for_editors(cli, tmp_path):
+    out = tmp_path / "vtexp.schema.json"
+    r = cli("schema", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    schema = json.loads(out.read_text())
+    defs = schema["$defs"]
+    assert schema["additionalProperties"] is False                 # unknown keys refused
+    assert defs["DesignSpec"]["additionalProperties"] is False
+    assert "height-contours" in defs["EncodingSpec"]["properties"]["pipeline"]["enum"]
+    assert "pulse-trains" in defs["CodingSpec"]["properties"]["protocol"]["enum"]
+    assert set(schema["properties"]["device"]["enum"]) >= {"pad_20x20", "vest_6x8", "sma_5x5"}
+    assert {"ChoiceQuestion", "RatingQuestion", "NumberQuestion"} <= set(defs)

@@ -47,6 +47,38 @@ def cmd_validate(args) -> int:
     return 0
 
 
+def cmd_schema(args) -> int:
+    """Write the experiment files' JSON Schema, for editors that complete and check YAML."""
+    import json
+
+    from .coding import CODINGS
+    from .encoding import PIPELINES
+    from .experiment import Experiment
+    from .model import available_profiles
+    from .stimuli import GENERATORS
+
+    schema = Experiment.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "vtexp experiment"
+    defs = schema.get("$defs", {})
+    # The names the registries accept, as enums an editor can offer.
+    for model, key, names in (("EncodingSpec", "pipeline", PIPELINES),
+                              ("CodingSpec", "protocol", CODINGS),
+                              ("StimulusSpec", "generator", GENERATORS)):
+        prop = defs.get(model, {}).get("properties", {}).get(key)
+        if prop is not None:
+            prop.pop("anyOf", None)
+            prop.update({"type": "string", "enum": sorted(names)})
+    schema["properties"]["device"]["enum"] = available_profiles()
+    text = json.dumps(schema, indent=2, ensure_ascii=False) + "\n"
+    if args.out:
+        Path(args.out).write_text(text, encoding="utf-8")
+        _out(f"written: {args.out}")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
 def cmd_plan(args) -> int:
     from .compile import compile_conditions
     from .design import trial_list
@@ -262,6 +294,10 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("validate", help="check experiment files")
     s.add_argument("files", nargs="+", metavar="FILE")
     s.set_defaults(func=cmd_validate)
+
+    s = sub.add_parser("schema", help="write the JSON Schema of experiment files")
+    s.add_argument("--out", metavar="FILE", help="write to FILE instead of standard output")
+    s.set_defaults(func=cmd_schema)
 
     s = sub.add_parser("plan", help="print a participant's trial list")
     s.add_argument("file", metavar="FILE")
