@@ -310,36 +310,36 @@ class Hello(Message):
         return m
 
 
+class _NoPayload(Message):
+    """A message that is its type alone (an empty payload, checked to be empty)."""
+
+    LABEL: ClassVar[str]
+
+    def pack(self) -> bytes:
+        return b""
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> _NoPayload:
+        _Reader(payload, cls.LABEL).end()
+        return cls()
+
+
 @dataclass(frozen=True)
-class Heartbeat(Message):
+class Heartbeat(_NoPayload):
     """Keep the device's watchdog fed; the ACK's time also measures round trips."""
 
     TYPE = 0x02
     REQUEST = True
-
-    def pack(self) -> bytes:
-        return b""
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Heartbeat:
-        _Reader(payload, "HEARTBEAT").end()
-        return cls()
+    LABEL = "HEARTBEAT"
 
 
 @dataclass(frozen=True)
-class AllOff(Message):
+class AllOff(_NoPayload):
     """Every actuator off at once; any play in progress is abandoned."""
 
     TYPE = 0x03
     REQUEST = True
-
-    def pack(self) -> bytes:
-        return b""
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> AllOff:
-        _Reader(payload, "ALL_OFF").end()
-        return cls()
+    LABEL = "ALL_OFF"
 
 
 @dataclass(frozen=True)
@@ -489,33 +489,19 @@ class Trigger(Message):
 
 
 @dataclass(frozen=True)
-class Status(Message):
+class Status(_NoPayload):
     TYPE = 0x09
     REQUEST = True
-
-    def pack(self) -> bytes:
-        return b""
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Status:
-        _Reader(payload, "STATUS").end()
-        return cls()
+    LABEL = "STATUS"
 
 
 @dataclass(frozen=True)
-class Bye(Message):
+class Bye(_NoPayload):
     """The host is leaving: everything off and the session ends, without a watchdog alarm."""
 
     TYPE = 0x0B
     REQUEST = True
-
-    def pack(self) -> bytes:
-        return b""
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Bye:
-        _Reader(payload, "BYE").end()
-        return cls()
+    LABEL = "BYE"
 
 
 @dataclass(frozen=True)
