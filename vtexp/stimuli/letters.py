@@ -9,26 +9,17 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from .._cv2 import cv2
-from ..model import Model
+from .shapes import FlatImageParams
 
 LETTERS = tuple(string.ascii_uppercase)
 
 
-class LetterParams(Model):
+class LetterParams(FlatImageParams):
     letter: str = Field(description="one capital letter, A-Z")
-    width: Annotated[int, Field(ge=16, le=8192)] = 320
-    height: Annotated[int, Field(ge=16, le=8192)] = 240
     size: Annotated[float, Field(gt=0, le=1)] = Field(
         0.7, description="letter height as a fraction of the image height")
     stroke: Annotated[float, Field(gt=0, le=0.5)] = Field(
         0.12, description="stroke width as a fraction of the letter height")
-    center_x: Annotated[float, Field(ge=0, le=1)] = 0.5
-    center_y: Annotated[float, Field(ge=0, le=1)] = 0.5
-    rotation_deg: float = 0.0
-    background: Annotated[int, Field(ge=0, le=255)] = 40
-    foreground: Annotated[int, Field(ge=0, le=255)] = 210
-    noise_sd: Annotated[float, Field(ge=0)] = 0.0
-    seed: int = 0
 
     @field_validator("letter")
     @classmethod

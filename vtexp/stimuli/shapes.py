@@ -12,10 +12,9 @@ from ..model import Model
 SHAPES = ("triangle", "circle", "square", "rectangle")
 
 
-class ShapeParams(Model):
-    """Parameters of :func:`render_shape` (the keys allowed under ``params:``)."""
+class FlatImageParams(Model):
+    """A light figure on a darker ground, as a camera sees a card: frame, placement, contrast."""
 
-    shape: Literal["triangle", "circle", "square", "rectangle"]
     width: Annotated[int, Field(ge=16, le=8192)] = 320
     height: Annotated[int, Field(ge=16, le=8192)] = 240
     size: Annotated[float, Field(gt=0, le=1)] = Field(
@@ -27,6 +26,12 @@ class ShapeParams(Model):
     foreground: Annotated[int, Field(ge=0, le=255)] = 210
     noise_sd: Annotated[float, Field(ge=0)] = 0.0
     seed: int = 0
+
+
+class ShapeParams(FlatImageParams):
+    """Parameters of :func:`render_shape` (the keys allowed under ``params:``)."""
+
+    shape: Literal["triangle", "circle", "square", "rectangle"]
 
 
 def _shape_polygon(p: ShapeParams) -> np.ndarray | None:
