@@ -168,3 +168,31 @@ def test_schema_for_editors(cli, tmp_path):
     assert "pulse-trains" in defs["CodingSpec"]["properties"]["protocol"]["enum"]
     assert set(schema["properties"]["device"]["enum"]) >= {"pad_20x20", "vest_6x8", "sma_5x5"}
     assert {"ChoiceQuestion", "RatingQuestion", "NumberQuestion"} <= set(defs)
+
+
+def test_console_responder_through_standard_input(tmp_path, minimal_yaml):
+    import os
+    import subprocess
+    import sys
+    from conftest import ROOT, write_experiment
+    f = write_experiment(tmp_path, minimal_yaml.replace('correct: "{shape}"',
+                                                         'correct: "{shape}"\n  replays: 1'))
+    # instructions (Enter), then: a wrong entry, a replay, then answers by number or text.
+    stdin = "\n" + "x\nr\n1\n" + "2\n" + "circle\n" + "square\n"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    r = subprocess.run([sys.executable, "-m", "vtexp", "run", str(f), "-p", "01",
+                        "--responder", "console", "--data", str(tmp_path / "d"), "--quiet"],
+                       input=stdin, capture_output=True, text=True, env=env, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "1. square" in r.stdout and "'x' is not an answer here" in r.stdout
+    tsv = next((tmp_path / "d").rglob("*_beh.tsv"))
+    beh = pd.read_csv(tsv, sep="\t")
+    assert list(beh["answer"]) == ["square", "circle", "circle", "square"]
+    assert list(beh["replays"]) == [1, 0, 0, 0] and (beh["rt_s"] >= 0).all()
+    # The input ends before the last trial: the session is aborted, the rest kept.
+    r = subprocess.run([sys.executable, "-m", "vtexp", "run", str(f), "-p", "02",
+                        "--responder", "console", "--data", str(tmp_path / "d"), "--quiet"],
+                       input="\n1\n", capture_output=True, text=True, env=env, timeout=60)
+    assert r.returncode == 130 and "input ended" in r.stderr and "Traceback" not in r.stderr
+    meta = json.loads(next((tmp_path / "d").rglob("sub-02/ses-1/session.json")).read_text())
+    assert meta["status"] == "aborted" and meta["n_trials_logged"] == 1

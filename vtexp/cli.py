@@ -312,8 +312,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--session", "-s", type=int, default=1)
     s.add_argument("--device", default="sim", help="device backend (default: sim)")
     s.add_argument("--responder", required=True,
-                   help="who answers: scripted:correct | scripted:random | "
-                        "scripted:accuracy=P | scripted:answers=FILE | window (the "
+                   help="who answers: console (in this terminal) | scripted:correct | "
+                        "scripted:random | scripted:accuracy=P | scripted:answers=FILE | "
+                        "window (the "
                         "participant's PsychoPy window, fullscreen on screen 0; options "
                         "after a colon, comma-separated: windowed, fullscreen, screen=N, "
                         "size=WxH, abort=KEY (default escape), e.g. "

@@ -12,10 +12,13 @@ def make_responder(spec: str, participant: str, session: int) -> Responder:
     kind, _, arg = spec.partition(":")
     if kind == "scripted":
         return make_scripted(arg or "correct", participant, session)
+    if kind == "console":
+        from .console import make_console
+        return make_console(arg)
     if kind == "window":
         from .window import make_window     # PsychoPy is imported only here
         return make_window(arg)
-    raise InputError(f"unknown responder {spec!r}; available: scripted:correct, "
+    raise InputError(f"unknown responder {spec!r}; available: console, scripted:correct, "
                      "scripted:random, scripted:accuracy=P, scripted:answers=FILE, "
                      "window[:windowed|fullscreen,screen=N,size=WxH,abort=KEY]",
                      key="--responder")
