@@ -45,6 +45,16 @@ def _groups(df: pd.DataFrame, by: list[str]):
         yield (key if isinstance(key, tuple) else (key,)), g
 
 
+def _matrices(trials: pd.DataFrame, stimulus: str, response: str, by: list[str],
+              labels: list[str] | None):
+    """The labels, and (group key, k x k count matrix) for each group of ``by``."""
+    df = _scored(trials, stimulus, response, by)
+    labels = _labels(df, stimulus, response, labels)
+    return labels, [(key, confusion_counts(g[stimulus].astype(str).to_numpy(),
+                                           g[response].astype(str).to_numpy(), labels))
+                    for key, g in _groups(df, by)]
+
+
 def confusion_counts(stim: np.ndarray, resp: np.ndarray, labels: list[str]) -> np.ndarray:
     """k × k counts: rows the stimulus presented, columns the response given."""
     idx = {lv: i for i, lv in enumerate(labels)}
@@ -68,12 +78,9 @@ def confusion_matrix(trials: pd.DataFrame, by: list[str] | str | None = None, *,
     circular": 66.7 %).
     """
     by = [by] if isinstance(by, str) else list(by or [])
-    df = _scored(trials, stimulus, response, by)
-    labels = _labels(df, stimulus, response, labels)
+    labels, matrices = _matrices(trials, stimulus, response, by, labels)
     rows = []
-    for key, g in _groups(df, by):
-        m = confusion_counts(g[stimulus].astype(str).to_numpy(),
-                             g[response].astype(str).to_numpy(), labels)
+    for key, m in matrices:
         n_stim = m.sum(axis=1)
         for i, s in enumerate(labels):
             for j, r in enumerate(labels):
@@ -137,12 +144,9 @@ def information_transfer(trials: pd.DataFrame, by: list[str] | str | None = None
     reader can judge.
     """
     by = [by] if isinstance(by, str) else list(by or [])
-    df = _scored(trials, stimulus, response, by)
-    labels = _labels(df, stimulus, response, labels)
+    labels, matrices = _matrices(trials, stimulus, response, by, labels)
     rows = []
-    for key, g in _groups(df, by):
-        m = confusion_counts(g[stimulus].astype(str).to_numpy(),
-                             g[response].astype(str).to_numpy(), labels)
+    for key, m in matrices:
         n = int(m.sum())
         it, hs, hr = _it(m)
         ks = int((m.sum(axis=1) > 0).sum())
@@ -168,12 +172,9 @@ def agreement(trials: pd.DataFrame, by: list[str] | str | None = None, *,
     same table (tested).
     """
     by = [by] if isinstance(by, str) else list(by or [])
-    df = _scored(trials, stimulus, response, by)
-    labels = _labels(df, stimulus, response, labels)
+    labels, matrices = _matrices(trials, stimulus, response, by, labels)
     rows = []
-    for key, g in _groups(df, by):
-        m = confusion_counts(g[stimulus].astype(str).to_numpy(),
-                             g[response].astype(str).to_numpy(), labels)
+    for key, m in matrices:
         k, se = _kappa(m)
         rows.append({**dict(zip(by, key)), "n": int(m.sum()),
                      "accuracy": np.trace(m) / m.sum(), "kappa": k, "kappa_se": se,
