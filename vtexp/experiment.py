@@ -58,23 +58,25 @@ class StimulusSpec(Model):
 class EncodingSpec(Model):
     pipeline: str = Field(description="a name from vtexp.encoding.PIPELINES")
 
+    params: dict[str, Any] = Field(default_factory=dict)
+
     @field_validator("pipeline")
     @classmethod
     def _known(cls, v: str) -> str:
         from .encoding import PIPELINES
         return _registered("pipeline", v, PIPELINES)
-    params: dict[str, Any] = Field(default_factory=dict)
 
 
 class CodingSpec(Model):
     protocol: str = Field(description="a name from vtexp.coding.CODINGS")
+
+    params: dict[str, Any] = Field(default_factory=dict)
 
     @field_validator("protocol")
     @classmethod
     def _known(cls, v: str) -> str:
         from .coding import CODINGS
         return _registered("coding protocol", v, CODINGS)
-    params: dict[str, Any] = Field(default_factory=dict)
 
 
 class FactorSpec(Model):
