@@ -414,6 +414,7 @@ def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
     schedule = trial.condition.schedule
     call_hook(responder, "stimulus_starts", trial)
     plays = [device.play(schedule)]
+    call_hook(responder, "stimulus_played", trial, plays[0])
     records = []
     for q in exp.asked():
         before = len(plays)
@@ -423,6 +424,7 @@ def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
                 raise SessionError(f"trial {trial.number}: no replays left "
                                    f"(the question allows {q.replays})")
             plays.append(device.play(schedule))
+            call_hook(responder, "stimulus_played", trial, plays[-1])
             return plays[-1]
 
         resp = responder.ask(q, trial, replay if q.replays > 0 else None)

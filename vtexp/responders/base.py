@@ -52,7 +52,9 @@ class ScreenResponder(Responder, Protocol):
     The session engine calls these, when a responder has them, around the trials:
     ``instructions`` once before the first trial, ``stimulus_starts`` just before
     each stimulus plays (a "ready" or fixation screen), ``pause`` at a break,
-    ``finish`` after the last trial. Raising :class:`vtexp.errors.SessionAborted`
+    ``finish`` after the last trial, and ``stimulus_played`` with the device's
+    report of what it played, after each play (replays too). Raising
+    :class:`vtexp.errors.SessionAborted`
     from any of them, or from ``ask``, aborts the session: every actuator off,
     the session marked aborted, completed trials kept.
     """
@@ -60,6 +62,8 @@ class ScreenResponder(Responder, Protocol):
     def instructions(self, text: str) -> None: ...
 
     def stimulus_starts(self, trial: Trial) -> None: ...
+
+    def stimulus_played(self, trial: Trial, report: PlayReport) -> None: ...
 
     def pause(self, text: str) -> None: ...
 
