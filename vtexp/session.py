@@ -185,7 +185,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                 conditions: list[Condition] | None = None,
                 sinks: tuple[TrialSink, ...] = (), command: list[str] | None = None,
                 on_device_error: DeviceFaultHandler | None = None,
-                resume: bool = False) -> SessionResult:
+                resume: bool = False, max_trials: int | None = None) -> SessionResult:
     """Run one session and log it. Raises SessionError if the session already exists.
 
     ``resume=True`` continues a session that did not finish (killed, crashed,
@@ -201,6 +201,10 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     the trial with status ``device_error`` and go on) or ``"abort"`` (end the
     session, status ``failed``, the error re-raised). Without a handler the
     session aborts.
+
+    ``max_trials=N`` stops after N trials of this run (counted from where a
+    resumed session continues): the session ends with status ``aborted`` and
+    the reason "stopped after N trials as asked", so that it can be resumed.
     """
     exp = lx.experiment
     check_participant(participant)
@@ -265,7 +269,8 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     try:
         call_hook(responder, "resume_at", done)
         call_hook(responder, "instructions", exp.instructions.strip() or exp.asked()[0].prompt)
-        for trial in trials[done:]:
+        todo = trials[done:] if max_trials is None else trials[done:done + max_trials]
+        for trial in todo:
             recs, plays = _run_trial_pausing(exp, trial, device, responder, on_device_error)
             # The device events first, the trial's row last: the row is what makes a
             # trial complete, so a trial cut short leaves no row and is played again.
@@ -290,6 +295,8 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
             _maybe_break(exp, trial, trials, responder)
         call_hook(responder, "finish", "Thank you. The session is over.")
         status = "completed"
+        if len(todo) < len(trials) - done:
+            status, reason = "aborted", f"stopped after {len(todo)} trials as asked"
     except (KeyboardInterrupt, SessionAborted) as e:
         status, reason = "aborted", (str(e) if isinstance(e, SessionAborted)
                                      else "interrupted by the experimenter")
