@@ -419,8 +419,19 @@ def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
     """Play the stimulus, then ask each question in turn: one record per question."""
     started = now_iso()
     schedule = trial.condition.schedule
+    stop = getattr(responder, "stop_requested", None)
+
+    def play() -> PlayReport:
+        # The responder's abort key is read while the stimulus plays: the device
+        # turns every actuator off at once and raises SessionAborted.
+        try:
+            return device.play(schedule, should_stop=stop)
+        except SessionAborted:
+            call_hook(responder, "stimulus_stopped", trial)
+            raise
+
     call_hook(responder, "stimulus_starts", trial)
-    plays = [device.play(schedule)]
+    plays = [play()]
     call_hook(responder, "stimulus_played", trial, plays[0])
     records = []
     for q in exp.asked():
@@ -430,7 +441,7 @@ def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
             if len(plays) - before >= q.replays:
                 raise SessionError(f"trial {trial.number}: no replays left "
                                    f"(the question allows {q.replays})")
-            plays.append(device.play(schedule))
+            plays.append(play())
             call_hook(responder, "stimulus_played", trial, plays[-1])
             return plays[-1]
 

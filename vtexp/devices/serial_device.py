@@ -14,8 +14,10 @@ from the profile, and plays Schedules in one of two ways:
 
 Safety is :class:`~vtexp.devices.base.DeviceBase`'s: every Schedule passes
 ``vtexp.safety`` before a byte is written, and every error path ends in
-ALL_OFF. When the device is lost, the host raises :class:`DeviceLost` within
-one heartbeat period and the device's own watchdog turns everything off.
+ALL_OFF. While a schedule plays, ``play``'s ``should_stop`` is polled every few
+ms (between frames, and while waiting for the device's onsets); a stop sends
+ALL_OFF at once. When the device is lost, the host raises :class:`DeviceLost`
+within one heartbeat period and the device's own watchdog turns everything off.
 
 :class:`EmulatedDevice` (``emulator``) is a :class:`SerialDevice` talking to
 a :class:`~vtexp.devices.emulator.PtyEmulator` that it starts itself.
@@ -39,7 +41,7 @@ from ..model import (
     Schedule,
 )
 from . import wire
-from .base import DeviceBase
+from .base import STOP_POLL_S, DeviceBase
 from .link import DeviceLost, Link
 from .wire import (
     Ack,
@@ -113,13 +115,17 @@ def change_groups(pulses: list[Pulse], cols: int, off: Setting
     return out
 
 
-def wait_until(t_perf: float, link: Link | None = None, spin_s: float = 0.005) -> None:
+def wait_until(t_perf: float, link: Link | None = None, spin_s: float = 0.005,
+               poll: Callable[[], None] | None = None) -> None:
     """Sleep until shortly before ``t_perf`` (``time.perf_counter``), then spin to it.
 
     Sleeps in slices of at most 10 ms so that a lost ``link`` is raised at once,
-    not at the next frame. The last ``spin_s`` are spent awake: a thread woken
-    from sleep on a busy machine can start milliseconds late (``bench/timing.py``).
+    not at the next frame; with ``poll`` (which may raise), in slices of
+    ``STOP_POLL_S``, calling it before each. The last ``spin_s`` are spent awake
+    and poll nothing: a thread woken from sleep on a busy machine can start
+    milliseconds late (``bench/timing.py``).
     """
+    slice_s = 0.010 if poll is None else STOP_POLL_S
     while True:
         if link is not None:
             link.check()
@@ -127,7 +133,9 @@ def wait_until(t_perf: float, link: Link | None = None, spin_s: float = 0.005) -
         if left <= 0:
             return
         if left > spin_s:
-            time.sleep(min(left - spin_s, 0.010))
+            if poll is not None:
+                poll()
+            time.sleep(min(left - spin_s, slice_s))
         else:
             time.sleep(0)           # let the reader thread run while we spin
 
@@ -366,6 +374,7 @@ class SerialDevice(DeviceBase):
             link.expect(UploadChunk(pid, k, self._drive, tuple(wp[k:k + per])), Ack)
         st = _PlayState(pid, len(wp), [None] * len(wp))
         self._current = st
+        self._check_stop()                  # stopped during the upload: nothing is played
         start_us = link.expect(Trigger(pid, 0), Ack).t_us
         self._wait_done(link, st, schedule.duration_ms)
         if st.done is not None and st.done.reason != DoneReason.FINISHED:
@@ -382,16 +391,22 @@ class SerialDevice(DeviceBase):
                           duration_ms=schedule.duration_ms, pulses=report)
 
     def _wait_done(self, link: Link, st: _PlayState, duration_ms: float) -> None:
-        """Wait for PLAY_DONE; if that event was lost, ask for the status instead."""
+        """Wait for PLAY_DONE; if that event was lost, ask for the status instead.
+
+        Polls ``should_stop`` every few ms while it waits (:meth:`_check_stop`).
+        """
         hb = link.heartbeat_s or 0.2
+        step = hb / 4 if self._should_stop is None else min(hb / 4, STOP_POLL_S)
         deadline = time.monotonic() + duration_ms / 1000.0 + max(0.1, hb)
         while True:
-            with link._cond:
-                while st.done is None and link.lost is None:
-                    left = deadline - time.monotonic()
-                    if left <= 0:
-                        break
-                    link._cond.wait(min(left, hb / 4))
+            while st.done is None and link.lost is None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                with link._cond:
+                    if st.done is None and link.lost is None:
+                        link._cond.wait(min(left, step))
+                self._check_stop()
             link.check()
             if st.done is not None:
                 return
@@ -455,12 +470,13 @@ class SerialDevice(DeviceBase):
         state = [self._off] * (self.profile.rows * self.profile.cols)
         onsets: list[int | None] = [None] * len(pulses)
         first_t_us: int | None = None
+        poll = self._check_stop if self._should_stop is not None else None
         t0 = time.perf_counter() + 0.002
         try:
             for t_ms, changes, starting in groups:
                 target = t0 + t_ms / 1000.0
                 link.next_send_at = target
-                wait_until(target, link)
+                wait_until(target, link, poll=poll)
                 applied = None
                 for msg in self._frames(state, changes):
                     ack = link.expect(msg, Ack)

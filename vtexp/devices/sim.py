@@ -3,8 +3,10 @@
 It records exactly what would have been driven: every play, every all-off,
 and the state of each actuator. Its clock is virtual (milliseconds since
 open) and advances by each schedule's duration, so a whole study runs in
-well under a second; ``realtime=True`` also sleeps for the duration, for
-demonstrations in front of people.
+well under a second; ``realtime=True`` also takes the schedule's real time,
+switching ``state`` at each onset and offset, for demonstrations in front of
+people. In real time a play polls ``should_stop`` every few ms and, when it
+says stop, records how far it got (a ``stopped`` event) and turns all off.
 """
 
 from __future__ import annotations
@@ -14,14 +16,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..model import DeviceInfo, DeviceProfile, PlayedPulse, PlayReport, Schedule
+from ..errors import SessionAborted
+from ..model import DeviceInfo, DeviceProfile, PlayedPulse, PlayReport, Pulse, Schedule
 from .base import DeviceBase
 
 
 @dataclass
 class SimEvent:
     t_ms: float
-    kind: str                 # "play" | "all_off" | "open" | "close" | "wait"
+    kind: str                 # "play" | "stopped" | "all_off" | "open" | "close" | "wait"
     detail: object = None
 
 
@@ -55,19 +58,38 @@ class SimDevice(DeviceBase):
         report = PlayReport(device=self.profile.name, started_at_ms=start,
                             duration_ms=schedule.duration_ms, pulses=played)
         if self.realtime and schedule.duration_ms > 0:
-            time.sleep(schedule.duration_ms / 1000.0)
+            self._drive_realtime(schedule)
         self.clock_ms = start + schedule.duration_ms
         self.history.append(SimEvent(start, "play", report))
         self.plays.append(report)
         self.state[:] = 0.0     # every pulse has ended by the end of the schedule
         return report
 
+    def _drive_realtime(self, schedule: Schedule) -> None:
+        """Take the schedule's real time, ``state`` following its pulses."""
+        pulses = schedule.sorted()
+        instants = sorted({p.onset_ms for p in pulses} | {p.offset_ms for p in pulses}
+                          | {schedule.duration_ms})
+        t0 = time.monotonic()
+        try:
+            for t in instants:
+                self._sleep(t0 + t / 1000.0 - time.monotonic())
+                self.state[:] = 0.0
+                for p in pulses:        # overlapping pulses: the latest started drives it
+                    if p.onset_ms <= t < p.offset_ms:
+                        self.state[p.row, p.col] = _drive(p)
+        except SessionAborted:
+            elapsed = (time.monotonic() - t0) * 1000.0
+            self.history.append(SimEvent(self.clock_ms, "stopped", elapsed))
+            self.clock_ms += elapsed
+            raise
+
     def wait(self, ms: float) -> None:
         """Let ``ms`` of virtual time pass (inter-trial intervals)."""
         if ms > 0:
             self.history.append(SimEvent(self.clock_ms, "wait", ms))
             if self.realtime:
-                time.sleep(ms / 1000.0)
+                self._sleep(ms / 1000.0)
             self.clock_ms += ms
 
     def _now_ms(self) -> float:
@@ -82,3 +104,7 @@ class SimDevice(DeviceBase):
 
     def _close(self) -> None:
         self.history.append(SimEvent(self.clock_ms, "close"))
+
+
+def _drive(p: Pulse) -> float:
+    return float(p.level) if p.level is not None else p.train.amplitude_v
