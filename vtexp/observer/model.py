@@ -1,0 +1,265 @@
+"""The model participant: from the percept of what was played to an answer.
+
+For a choice question the participant compares the percept of the played
+stimulus with the percept of each answer option, rendered through the same
+encoding, coding and (simulated) device with the trial's condition. With white
+sensory noise (``vtexp.observer.percept`` P3) the log-likelihood of option k is
+
+    E_k = -|D_k|^2 / 2 - xi_k + sigma_d eta_k,   D_k = s (f_played - f_k)     (M1)
+
+where ``s = sqrt(eta / N0)`` scales the feature distance to d' units (P3),
+``xi ~ N(0, D D^T)`` is the projection of one draw of sensory noise on the
+differences (exactly the noise of comparing a noisy percept with every
+template, without drawing the whole field), and ``eta_k ~ N(0, 1)`` is late
+decision noise of size ``sigma_d``. The answer is the option with the largest
+E; an "abstain" option ("uncertain") is chosen when the best leads the second
+by less than the abstain criterion. A rating question takes the evidence for
+its high anchor over its low anchor in SD units,
+
+    v = (E_high - E_low) / |D_high - D_low| + bias                          (M2)
+
+and cuts it by criteria ``rating_step`` apart, centred on 0 (equal-variance
+signal detection). A count of turns is the winding of the perceived path
+(``winding_turns``) plus Gaussian noise, rounded. On a lapse (probability
+``lapse``) the answer is drawn uniformly from the options, scale or range.
+
+Every random number of a trial comes from one row of uniforms keyed by
+(seed, experiment, participant, session, trial), so the responder in a
+session and the fast simulator give the same answers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import ndtri
+
+from ..compile import Condition, stimulus_image
+from ..errors import InputError
+from ..experiment import LoadedExperiment
+from ..model import DeviceProfile, PlayReport
+from .params import ObserverParams, Participant, draw_participant, load_params, uniform_stream
+from .percept import Skin, features, noise_density, winding_turns
+from .spec import ObserverSpec, TemplateSpec
+
+#: Uniforms per question and trial: lapse, lapse pick, turn noise, then two per option.
+FIXED_COLUMNS = 3
+
+
+def _normal(u: np.ndarray) -> np.ndarray:
+    return ndtri(np.clip(u, 1e-300, 1.0 - 2.0 ** -53))
+
+
+def question_columns(question) -> int:
+    n = len(question.options) if question.kind == "choice" else 2
+    return FIXED_COLUMNS + 2 * n
+
+
+@dataclass
+class _Geometry:
+    """What a decision needs about one played stimulus and one question's templates."""
+
+    gram: np.ndarray            # D D^T in feature units (without s^2)
+    root: np.ndarray            # a square root of gram (xi = root @ z)
+    scale: float = 1.0          # 1 / sqrt(N0): s of (M1) is sqrt(eta) times this
+    spread: float = 0.0         # |f_high - f_low| (ratings)
+    turns: float = 0.0          # winding of the played percept (counts)
+
+
+@dataclass
+class ObserverModel:
+    """An experiment's model participants: templates, percepts and decisions.
+
+    Holds every rendered template and computed geometry in caches, so that many
+    participants with the same skin share one computation.
+    """
+
+    lx: LoadedExperiment
+    profile: DeviceProfile
+    params: ObserverParams
+    spec: ObserverSpec
+    site: str
+    _reports: dict = field(default_factory=dict, repr=False)
+    _geometry: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def for_experiment(cls, lx: LoadedExperiment, profile: DeviceProfile | None = None, *,
+                       params_file=None, overrides: dict | None = None) -> ObserverModel:
+        exp = lx.experiment
+        spec = getattr(exp, "observer", None) or ObserverSpec()
+        profile = profile or DeviceProfile.load(exp.device)
+        params = load_params(params_file, {**spec.params, **(overrides or {})})
+        site = params.site_of(spec.body_site or profile.geometry.body_site)
+        model = cls(lx, profile, params, spec, site)
+        model._check()
+        return model
+
+    # ------------------------------------------------------------------ declaration checks
+    def _check(self) -> None:
+        exp = self.lx.experiment
+        for q in exp.asked():
+            if q.kind == "choice":
+                for o in q.options:
+                    if o not in self.spec.abstain:
+                        self._template_spec(o, q.name)
+            elif q.kind == "rating":
+                if q.name not in self.spec.ratings:
+                    raise self._error(f"the model observer needs the anchors of rating question "
+                                      f"{q.name!r}: observer.ratings.{q.name}: "
+                                      "{low: TEMPLATE, high: TEMPLATE}", ("observer",))
+                a = self.spec.ratings[q.name]
+                self._template_spec(a.low, q.name)
+                self._template_spec(a.high, q.name)
+            elif q.kind == "number" and q.name not in self.spec.counts:
+                raise self._error(f"the model observer does not know what number question "
+                                  f"{q.name!r} counts: observer.counts.{q.name}: turns",
+                                  ("observer",))
+
+    def _error(self, msg: str, keypath: tuple) -> InputError:
+        try:
+            return self.lx.error(msg, keypath)
+        except Exception:           # noqa: BLE001 - a key not in the file: no line number
+            return InputError(msg, path=str(self.lx.path), key=".".join(keypath))
+
+    def _template_spec(self, name: str, question: str) -> TemplateSpec:
+        if name in self.spec.templates:
+            return self.spec.templates[name]
+        if name in self.lx.experiment.stimuli:
+            return TemplateSpec(stimulus=name)
+        raise self._error(f"answer {name!r} of question {question!r} is neither a stimulus nor "
+                          f"a template: add observer.templates.{name}", ("observer", "templates"))
+
+    # ------------------------------------------------------------------ participants
+    def participant(self, seed: int, participant: str, *, typical: bool = False) -> Participant:
+        return draw_participant(self.params, self.site, seed, participant, typical=typical)
+
+    def uniforms(self, seed: int, participant: str, session: int, n_trials: int) -> np.ndarray:
+        """The uniforms of every trial (rows, by trial number) and question (columns)."""
+        cols = sum(question_columns(q) for q in self.lx.experiment.asked())
+        rng = uniform_stream("trials", seed, self.lx.experiment.name, participant, session)
+        return rng.random((n_trials, cols))
+
+    # ------------------------------------------------------------------ templates
+    def template_report(self, name: str, condition: Condition) -> PlayReport:
+        """The answer ``name`` as the device would play it in ``condition``."""
+        from ..coding import CODINGS
+        from ..devices.sim import SimDevice
+        from ..encoding import PIPELINES
+        from ..stimuli import GENERATORS
+
+        ts = self._template_spec(name, "")
+        key = (name, repr(sorted(condition.encoding_params.items())),
+               repr(sorted(condition.coding_params.items())))
+        if key in self._reports:
+            return self._reports[key]
+        exp = self.lx.experiment
+        if ts.stimulus is not None:
+            if ts.stimulus not in exp.stimuli:
+                raise self._error(f"template {name!r} names no stimulus of the experiment "
+                                  f"({ts.stimulus!r})", ("observer", "templates", name))
+            image = stimulus_image(self.lx, ts.stimulus)
+        else:
+            fn, _ = GENERATORS[ts.generator]
+            image = fn(**ts.params)
+        enc_fn, enc_model = PIPELINES[exp.encoding.pipeline]
+        cod_fn, cod_model = CODINGS[exp.coding.protocol]
+        enc = enc_model.model_validate(condition.encoding_params).model_dump()
+        pattern = enc_fn(image, self.profile.rows, self.profile.cols, **enc)
+        if not pattern.points:
+            raise self._error(f"template {name!r} gives an empty pattern on {self.profile.name}",
+                              ("observer", "templates", name))
+        cod = cod_model.model_validate(condition.coding_params).model_dump()
+        schedule = cod_fn(pattern, self.profile, **cod)
+        with SimDevice(self.profile) as dev:
+            report = dev.play(schedule)
+        if ts.scramble:
+            report = _scrambled(report, name)
+        self._reports[key] = report
+        return report
+
+    # ------------------------------------------------------------------ geometry
+    def _support(self, reports: list[PlayReport]) -> np.ndarray:
+        cols = self.profile.geometry.cols
+        return np.array(sorted({p.row * cols + p.col for r in reports for p in r.pulses}),
+                        dtype=int)
+
+    def geometry(self, question, condition: Condition, played: PlayReport,
+                 who: Participant) -> _Geometry:
+        key = (question.name, condition.index, _report_key(played), who.key)
+        g = self._geometry.get(key)
+        if g is not None:
+            return g
+        skin = Skin(who.two_point_threshold_mm, who.integration_ms, who.intensity_levels)
+        if question.kind == "number":
+            g = _Geometry(np.zeros((0, 0)), np.zeros((0, 0)),
+                          turns=winding_turns(played, self.profile, skin))
+        else:
+            if question.kind == "choice":
+                names = [o for o in question.options if o not in self.spec.abstain]
+            else:
+                a = self.spec.ratings[question.name]
+                names = [a.low, a.high]
+            reports = [played] + [self.template_report(n, condition) for n in names]
+            f = features(reports, self.profile, skin, self._support(reports))
+            D = f[:1] - f[1:]
+            gram = D @ D.T
+            w, V = np.linalg.eigh(gram)
+            g = _Geometry(gram, V * np.sqrt(np.clip(w, 0, None)),
+                          scale=float(1.0 / np.sqrt(noise_density(skin))),
+                          spread=float(np.linalg.norm(f[2] - f[1])) if question.kind == "rating"
+                          else 0.0)
+        self._geometry[key] = g
+        return g
+
+    # ------------------------------------------------------------------ decisions
+    def answer(self, question, condition: Condition, played: PlayReport, who: Participant,
+               u: np.ndarray) -> str:
+        """The answer of participant ``who`` given the trial's uniforms ``u`` for this question."""
+        g = self.geometry(question, condition, played, who)
+        lapsed = u[0] < who.lapse
+        if question.kind == "number":
+            lo, hi = question.minimum, question.maximum
+            if lapsed:
+                return str(lo + min(int(u[1] * (hi - lo + 1)), hi - lo))
+            n = round(g.turns + self.params.turns_sd * _normal(u[2]))
+            return str(int(min(max(n, lo), hi)))
+        opts = question.options if question.kind == "choice" else [str(v) for v in question.scale]
+        if lapsed:
+            return opts[min(int(u[1] * len(opts)), len(opts) - 1)]
+        s = g.scale * np.sqrt(who.efficiency)
+        k = g.gram.shape[0]
+        z = _normal(u[FIXED_COLUMNS:FIXED_COLUMNS + k])
+        late = _normal(u[FIXED_COLUMNS + k:FIXED_COLUMNS + 2 * k])
+        E = -s * s * np.diag(g.gram) / 2 - s * (g.root @ z) + who.decision_noise * late  # (M1)
+        if question.kind == "rating":
+            spread = s * g.spread
+            v = (E[1] - E[0]) / spread if spread > 1e-12 else (E[1] - E[0])
+            v += who.rating_bias                                                       # (M2)
+            n = len(opts)
+            cuts = (np.arange(n - 1) - (n - 2) / 2) * self.params.rating_step
+            return opts[int(np.searchsorted(cuts, v))]
+        names = [o for o in question.options if o not in self.spec.abstain]
+        order = np.argsort(-E, kind="stable")
+        if self.spec.abstain and (k < 2 or E[order[0]] - E[order[1]]
+                                  < self.params.abstain_criterion):
+            abstain = [o for o in question.options if o in self.spec.abstain]
+            return abstain[0]
+        return names[int(order[0])]
+
+
+def _report_key(r: PlayReport) -> tuple:
+    return tuple((p.row, p.col, round(p.onset_ms, 6), round(p.duration_ms, 6), p.level,
+                  None if p.train is None else (p.train.amplitude_v, p.train.frequency_hz,
+                                                p.train.pulse_width_ms)) for p in r.pulses)
+
+
+def _scrambled(report: PlayReport, name: str) -> PlayReport:
+    """The same pulses at shuffled positions (a fixed permutation for the template)."""
+    cells = sorted({(p.row, p.col) for p in report.pulses})
+    rng = uniform_stream("scramble", name, len(cells))
+    perm = np.argsort(rng.random(len(cells)), kind="stable")
+    to = {c: cells[int(i)] for c, i in zip(cells, perm, strict=True)}
+    pulses = [p.model_copy(update={"row": to[(p.row, p.col)][0], "col": to[(p.row, p.col)][1]})
+              for p in report.pulses]
+    return report.model_copy(update={"pulses": pulses})

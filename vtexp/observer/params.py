@@ -1,0 +1,165 @@
+"""The model participant's parameters, the population they vary in, and the YAML that holds them.
+
+Defaults live in ``protocols/observers/default.yaml`` with the source of each
+value. :class:`ObserverParams` is one participant; :class:`Population` draws a
+participant's own parameters deterministically from a seed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import Field, ValidationError
+
+from ..errors import InputError
+from ..model import Model
+from ..resources import protocols_dir
+
+Positive = Annotated[float, Field(gt=0)]
+
+
+class PopulationSpread(Model):
+    two_point_threshold_cv: Annotated[float, Field(ge=0, le=2)] = 0.25
+    integration_cv: Annotated[float, Field(ge=0, le=2)] = 0.30
+    intensity_levels_sd: Annotated[float, Field(ge=0, le=10)] = 0.5
+    efficiency_cv: Annotated[float, Field(ge=0, le=3)] = 0.5
+    decision_noise_cv: Annotated[float, Field(ge=0, le=3)] = 0.3
+    lapse_logit_sd: Annotated[float, Field(ge=0, le=5)] = 0.5
+    rating_bias_sd: Annotated[float, Field(ge=0, le=5)] = 0.3
+
+
+class ObserverParams(Model):
+    """One model participant (or the population's typical one)."""
+
+    two_point_threshold_mm: dict[str, Positive] = Field(
+        default_factory=lambda: {"fingertip": 2.5, "palm": 10.0, "forearm": 38.0,
+                                 "lower_back": 39.0})
+    site_aliases: dict[str, list[str]] = Field(default_factory=dict)
+    intensity_levels: Annotated[float, Field(ge=2, le=100)] = 7.5
+    integration_ms: Positive = 40.0
+    efficiency: Annotated[float, Field(gt=0, le=1)] = 0.1
+    decision_noise: Annotated[float, Field(ge=0)] = 1.0
+    abstain_criterion: Annotated[float, Field(ge=0)] = 1.0
+    rating_step: Positive = 1.0
+    turns_sd: Annotated[float, Field(ge=0)] = 0.5
+    lapse: Annotated[float, Field(ge=0, le=1)] = 0.02
+    population: PopulationSpread = Field(default_factory=PopulationSpread)
+
+    def site_of(self, body_site: str) -> str:
+        """The two-point-threshold site a device profile's ``body_site`` text names."""
+        text = body_site.lower()
+        best: tuple[int, str] | None = None
+        for site in self.two_point_threshold_mm:
+            for alias in [site.replace("_", " "), *self.site_aliases.get(site, [])]:
+                at = text.find(alias.lower())
+                if at >= 0 and (best is None or at < best[0]):
+                    best = (at, site)
+        if best is None:
+            raise InputError(f"the body site {body_site!r} names none of the sites with a "
+                             f"two-point threshold ({', '.join(self.two_point_threshold_mm)}); "
+                             "set observer.body_site in the experiment", key="body_site")
+        return best[1]
+
+
+def load_params(path: Path | str | None = None, overrides: dict[str, Any] | None = None
+                ) -> ObserverParams:
+    """Read an observer file (default: the shipped one) and apply ``overrides``."""
+    from ..yamlio import load_yaml
+
+    p = Path(path) if path is not None else protocols_dir() / "observers" / "default.yaml"
+    if not p.is_file():
+        raise InputError("no such observer file", path=str(p))
+    doc = load_yaml(p)
+    data = dict(doc.data or {})
+    for k, v in (overrides or {}).items():
+        if k == "population" and isinstance(v, dict):
+            data["population"] = {**data.get("population", {}), **v}
+        else:
+            data[k] = v
+    try:
+        return ObserverParams.model_validate(data)
+    except ValidationError as e:
+        err = e.errors()[0]
+        key = ".".join(str(x) for x in err["loc"])
+        raise InputError(f"{err['msg']}", path=str(p), key=key) from None
+
+
+# --------------------------------------------------------------------------- the population
+
+#: z-scores a participant's blur and integration time are rounded to, so that
+#: participants with nearly the same skin share one computed percept.
+Z_GRID = np.arange(-2.0, 2.01, 0.5)
+
+
+
+def _seed_words(*parts: object) -> list[int]:
+    """Four 32-bit words of SHA-256 over ``parts``: a portable seed for numpy's SeedSequence."""
+    h = hashlib.sha256("\x00".join(map(str, ("vtexp-observer", *parts))).encode()).digest()
+    return [int.from_bytes(h[i:i + 4], "big") for i in range(0, 16, 4)]
+
+
+def uniform_stream(*parts: object) -> np.random.Generator:
+    """A generator keyed by ``parts``. Only its uniform draws are used (``random``), whose
+    stream numpy keeps stable; normals are made from them by the inverse CDF."""
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(_seed_words(*parts))))
+
+
+def normals(rng: np.random.Generator, shape) -> np.ndarray:
+    from scipy.special import ndtri
+    u = rng.random(shape)
+    return ndtri(np.clip(u, 1e-300, 1.0 - 2.0 ** -53))
+
+
+@dataclass(frozen=True)
+class Participant:
+    """One simulated participant: their own parameters, drawn from the population."""
+
+    id: str
+    two_point_threshold_mm: float
+    intensity_levels: int
+    integration_ms: float
+    efficiency: float
+    decision_noise: float
+    lapse: float
+    rating_bias: float
+    key: tuple                       # what their percept depends on (shared in a cache)
+
+
+def draw_participant(params: ObserverParams, site: str, seed: int, participant: str, *,
+                     typical: bool = False) -> Participant:
+    """The parameters of ``participant`` under ``seed``: the same on every machine.
+
+    Blur, integration time, efficiency and decision noise are log-normal with their
+    medians at the defaults; blur's and integration time's z-scores are
+    rounded to the half-SD grid ``Z_GRID`` (so that percepts can be shared);
+    the intensity levels are normal, rounded to a whole number; the lapse rate
+    logit-normal; the rating bias normal around 0;
+    ``typical=True`` gives the population's central participant.
+    """
+    pop = params.population
+    z = np.zeros(7) if typical else normals(uniform_stream("population", seed, participant), 7)
+    zt = float(Z_GRID[np.argmin(np.abs(Z_GRID - z[0]))])
+    zi = float(Z_GRID[np.argmin(np.abs(Z_GRID - z[1]))])
+
+    def lognormal(mean: float, cv: float, zz: float) -> float:
+        s = np.sqrt(np.log1p(cv * cv))
+        return float(mean * np.exp(s * zz))
+
+    tpt = lognormal(params.two_point_threshold_mm[site], pop.two_point_threshold_cv, zt)
+    tau = lognormal(params.integration_ms, pop.integration_cv, zi)
+    levels = max(2, int(round(params.intensity_levels + pop.intensity_levels_sd * z[2])))
+    eff = min(1.0, lognormal(params.efficiency, pop.efficiency_cv, z[3]))
+    dn = lognormal(params.decision_noise, pop.decision_noise_cv, z[4]) \
+        if params.decision_noise > 0 else 0.0
+    if 0.0 < params.lapse < 1.0:
+        logit = np.log(params.lapse / (1 - params.lapse)) + pop.lapse_logit_sd * z[5]
+        lapse = float(1 / (1 + np.exp(-logit)))
+    else:
+        lapse = params.lapse
+    bias = float(pop.rating_bias_sd * z[6])
+    return Participant(participant, tpt, levels, tau, eff, dn, lapse, bias,
+                       key=(round(tpt, 9), levels, round(tau, 9)))

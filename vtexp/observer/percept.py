@@ -1,0 +1,182 @@
+"""What a model participant feels of a played stimulus.
+
+The percept of a :class:`~vtexp.model.PlayReport` is a field over the skin and
+time,
+
+    f(x, t) = sum_a G(x - x_a) u_a(t)                                        (P1)
+
+- ``x_a`` is actuator ``a``'s position on the skin (``geometry.pitch_mm``).
+- ``G(x) = exp(-|x|^2 / (2 s^2))`` is the skin's spatial blur, with
+  ``s = TPT / 2``: two equal spots ``2 s`` apart are just resolvable, so a
+  two-point threshold TPT sets ``s``.
+- ``u_a(t)`` is the actuator's perceived intensity through a leaky
+  integrator with time constant ``tau``:
+
+      u_a(t) = integral of x_a(t') exp(-(t - t') / tau) / tau dt'            (P2)
+
+  where ``x_a(t)`` is the intensity of the pulses actually played (device
+  onsets, not the schedule's).
+- Each pulse's intensity is its fraction of the device's strongest drive,
+  rounded to the participant's number of distinguishable levels L:
+  ``a_q = round(a (L - 1)) / (L - 1)``.
+
+Sensory noise is white. Its level is set by the two-point threshold itself:
+two brief pulses (one ``tau`` long) on spots one TPT apart must be told apart
+with d' = 1, the threshold. The discriminability of two percepts is then
+
+    d'^2 = eta * integral (f1 - f2)^2 dx dt / N0                             (P3)
+
+with ``N0`` that calibration (:func:`noise_density`) and ``eta`` the
+participant's efficiency at identifying whole patterns relative to a
+two-point judgement. Because the actuators sit on a grid, the spatial integral
+is a quadratic form in the ``u_a`` with the Gaussian overlap matrix
+
+    integral G(x - x_a) G(x - x_b) dx = pi s^2 exp(-|x_a - x_b|^2 / (4 s^2))  (P4)
+
+and :func:`features` returns vectors whose squared Euclidean distances are the
+integral in (P3), in units of TPT^2 tau: a square root of (P4) applied to the
+sampled ``u(t)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from ..model import DeviceProfile, PlayReport
+
+
+def pulse_intensities(report: PlayReport, profile: DeviceProfile) -> np.ndarray:
+    """Each played pulse's drive as a fraction (0-1) of the device's strongest drive.
+
+    Level drives: the level's effective volts over the highest level's. Pulse
+    trains: the train's mean electrical power over that of the strongest train
+    the profile allows (amplitude^2 x pulse width x frequency), an assumption:
+    the papers give no perceived-intensity curve for SMA pins.
+    """
+    drive = profile.drive
+    out = np.zeros(len(report.pulses))
+    if drive.kind == "levels":
+        volts = {lv.level: lv.volts for lv in drive.levels}
+        top = max(volts.values()) or 1.0
+        for i, p in enumerate(report.pulses):
+            out[i] = volts.get(p.level, 0.0) / top if p.level is not None else 1.0
+    else:
+        top = (drive.amplitude_v ** 2 * max(drive.pulse_width_ms) * max(drive.frequencies_hz))
+        for i, p in enumerate(report.pulses):
+            t = p.train
+            out[i] = (t.amplitude_v ** 2 * t.pulse_width_ms * t.frequency_hz / top) if t else 1.0
+    return np.clip(out, 0.0, 1.0)
+
+
+def quantize(a: np.ndarray, levels: int) -> np.ndarray:
+    """Round intensities to ``levels`` distinguishable steps from 0 to 1."""
+    return np.round(a * (levels - 1)) / (levels - 1)
+
+
+@dataclass(frozen=True)
+class Skin:
+    """The part of a participant that shapes the percept."""
+
+    two_point_threshold_mm: float
+    integration_ms: float
+    intensity_levels: int
+
+    @property
+    def sigma_mm(self) -> float:
+        return self.two_point_threshold_mm / 2.0
+
+    @property
+    def dt_ms(self) -> float:
+        return self.integration_ms / 2.0
+
+
+def activity(reports: list[PlayReport], profile: DeviceProfile, skin: Skin,
+             support: np.ndarray) -> np.ndarray:
+    """``u_a(t)`` (P2) of each report on a common time grid: shape (reports, actuators, bins).
+
+    ``support`` lists the flat actuator indices (row * cols + col) kept; pulses on
+    others are dropped (callers pass every actuator any report uses).
+    """
+    dt, tau = skin.dt_ms, skin.integration_ms
+    end = max((max((p.onset_ms + p.duration_ms for p in r.pulses), default=0.0)
+               for r in reports), default=0.0)
+    n_bins = int(np.ceil((end + 3 * tau) / dt)) + 1
+    index = {int(a): i for i, a in enumerate(support)}
+    x = np.zeros((len(reports), len(support), n_bins))
+    edges = np.arange(n_bins + 1) * dt
+    for k, r in enumerate(reports):
+        a = quantize(pulse_intensities(r, profile), skin.intensity_levels)
+        for p, amp in zip(r.pulses, a, strict=True):
+            if amp <= 0:
+                continue
+            i = index[p.row * profile.geometry.cols + p.col]
+            t0, t1 = p.onset_ms, p.onset_ms + p.duration_ms
+            b0, b1 = int(t0 // dt), min(int(np.ceil(t1 / dt)), n_bins)
+            lo = np.maximum(edges[b0:b1], t0)
+            hi = np.minimum(edges[b0 + 1:b1 + 1], t1)
+            x[k, i, b0:b1] += amp * np.clip(hi - lo, 0, None) / dt
+    alpha = np.exp(-dt / tau)
+    return lfilter([1.0 - alpha], [1.0, -alpha], x, axis=2)
+
+
+def overlap_factor(profile: DeviceProfile, skin: Skin, support: np.ndarray) -> np.ndarray:
+    """A square root R (R^T R = (P4) / TPT^2) over the ``support`` actuators."""
+    cols, pitch = profile.geometry.cols, profile.geometry.pitch_mm
+    rc = np.stack([support // cols, support % cols], axis=1).astype(float) * pitch
+    d2 = ((rc[:, None, :] - rc[None, :, :]) ** 2).sum(axis=2)
+    s = skin.sigma_mm
+    S = np.pi * s * s / skin.two_point_threshold_mm ** 2 * np.exp(-d2 / (4 * s * s))
+    w, V = np.linalg.eigh(S)                 # S may be near-singular when TPT >> pitch
+    return (V * np.sqrt(np.clip(w, 0, None))).T
+
+
+def features(reports: list[PlayReport], profile: DeviceProfile, skin: Skin,
+             support: np.ndarray) -> np.ndarray:
+    """One vector per report; ``|f_i - f_j|^2`` is the integral of (P3) over TPT^2 tau."""
+    u = activity(reports, profile, skin, support)          # (k, a, t)
+    R = overlap_factor(profile, skin, support)              # (a, a)
+    w = np.einsum("ba,kat->kbt", R, u) * np.sqrt(skin.dt_ms / skin.integration_ms)
+    return w.reshape(len(reports), -1)
+
+
+def winding_turns(report: PlayReport, profile: DeviceProfile, skin: Skin) -> float:
+    """Turns the perceived path makes around its centre.
+
+    The path is the centroid of the percept (P1) over time (the blur does not
+    move centroids; the integration time smooths them). Angle steps count only
+    while the path is farther than ``TPT / 2`` from the centre: closer in, the
+    skin cannot tell where around the centre the touch is.
+    """
+    cols = profile.geometry.cols
+    support = np.array(sorted({p.row * cols + p.col for p in report.pulses}), dtype=int)
+    if len(support) == 0:
+        return 0.0
+    u = activity([report], profile, skin, support)[0]         # (a, t)
+    pos = np.stack([support // cols, support % cols], axis=1) * profile.geometry.pitch_mm
+    total = u.sum(axis=0)
+    live = total > 1e-3 * total.max()
+    if live.sum() < 3:
+        return 0.0
+    c = (u[:, live].T @ pos) / total[live, None]              # (t, 2)
+    centre = (total[live, None] * c).sum(axis=0) / total[live].sum()
+    v = c - centre
+    r = np.hypot(v[:, 0], v[:, 1])
+    ang = np.unwrap(np.arctan2(v[:, 0], v[:, 1]))
+    far = (r[1:] > skin.sigma_mm) & (r[:-1] > skin.sigma_mm)
+    return float(abs(np.diff(ang)[far].sum()) / (2 * np.pi))
+
+
+def noise_density(skin: Skin) -> float:
+    """``N0`` of (P3), in the units of :func:`features`: two pulses one ``tau`` long on spots
+    one TPT apart differ by d' = 1 (the definition of the two-point threshold)."""
+    s, tpt = skin.sigma_mm, skin.two_point_threshold_mm
+    spatial = 2 * np.pi * s * s * (1 - np.exp(-tpt * tpt / (4 * s * s))) / tpt ** 2
+    n = max(1, int(round(skin.integration_ms / skin.dt_ms)))
+    box = np.zeros(n + int(np.ceil(6 * skin.integration_ms / skin.dt_ms)))
+    box[:n] = 1.0
+    alpha = np.exp(-skin.dt_ms / skin.integration_ms)
+    u = lfilter([1.0 - alpha], [1.0, -alpha], box)
+    return float(spatial * (u * u).sum() * skin.dt_ms / skin.integration_ms)
