@@ -82,6 +82,7 @@ class ObserverModel:
     site: str
     _reports: dict = field(default_factory=dict, repr=False)
     _geometry: dict = field(default_factory=dict, repr=False)
+    _images: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def for_experiment(cls, lx: LoadedExperiment, profile: DeviceProfile | None = None, *,
@@ -154,14 +155,17 @@ class ObserverModel:
         if key in self._reports:
             return self._reports[key]
         exp = self.lx.experiment
-        if ts.stimulus is not None:
-            if ts.stimulus not in exp.stimuli:
-                raise self._error(f"template {name!r} names no stimulus of the experiment "
-                                  f"({ts.stimulus!r})", ("observer", "templates", name))
-            image = stimulus_image(self.lx, ts.stimulus)
-        else:
-            fn, _ = GENERATORS[ts.generator]
-            image = fn(**ts.params)
+        image = self._images.get(name)
+        if image is None:
+            if ts.stimulus is not None:
+                if ts.stimulus not in exp.stimuli:
+                    raise self._error(f"template {name!r} names no stimulus of the experiment "
+                                      f"({ts.stimulus!r})", ("observer", "templates", name))
+                image = stimulus_image(self.lx, ts.stimulus)
+            else:
+                fn, _ = GENERATORS[ts.generator]
+                image = fn(**ts.params)
+            self._images[name] = image
         enc_fn, enc_model = PIPELINES[exp.encoding.pipeline]
         cod_fn, cod_model = CODINGS[exp.coding.protocol]
         enc = enc_model.model_validate(condition.encoding_params).model_dump()
@@ -185,8 +189,13 @@ class ObserverModel:
                         dtype=int)
 
     def geometry(self, question, condition: Condition, played: PlayReport,
-                 who: Participant) -> _Geometry:
-        key = (question.name, condition.index, _report_key(played), who.key)
+                 who: Participant, played_key: tuple | None = None) -> _Geometry:
+        """Cached by question, condition, what was played and the participant's skin.
+
+        ``played_key`` names the report when the caller knows it (the simulator
+        plays each condition once); else the report's content is the key.
+        """
+        key = (question.name, condition.index, played_key or _report_key(played), who.key)
         g = self._geometry.get(key)
         if g is not None:
             return g
@@ -203,20 +212,20 @@ class ObserverModel:
             reports = [played] + [self.template_report(n, condition) for n in names]
             f = features(reports, self.profile, skin, self._support(reports))
             D = f[:1] - f[1:]
-            gram = D @ D.T
+            gram = (D @ D.T).astype(np.float64)
             w, V = np.linalg.eigh(gram)
             g = _Geometry(gram, V * np.sqrt(np.clip(w, 0, None)),
                           scale=float(1.0 / np.sqrt(noise_density(skin))),
-                          spread=float(np.linalg.norm(f[2] - f[1])) if question.kind == "rating"
+                          spread=float(np.linalg.norm((f[2] - f[1]).astype(np.float64))) if question.kind == "rating"
                           else 0.0)
         self._geometry[key] = g
         return g
 
     # ------------------------------------------------------------------ decisions
     def answer(self, question, condition: Condition, played: PlayReport, who: Participant,
-               u: np.ndarray) -> str:
+               u: np.ndarray, played_key: tuple | None = None) -> str:
         """The answer of participant ``who`` given the trial's uniforms ``u`` for this question."""
-        g = self.geometry(question, condition, played, who)
+        g = self.geometry(question, condition, played, who, played_key)
         lapsed = u[0] < who.lapse
         if question.kind == "number":
             lo, hi = question.minimum, question.maximum

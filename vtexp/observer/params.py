@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
+from scipy.special import ndtr, ndtri
 from pydantic import Field, ValidationError
 
 from ..errors import InputError
@@ -90,9 +91,11 @@ def load_params(path: Path | str | None = None, overrides: dict[str, Any] | None
 
 # --------------------------------------------------------------------------- the population
 
-#: z-scores a participant's blur and integration time are rounded to, so that
-#: participants with nearly the same skin share one computed percept.
-Z_GRID = np.arange(-2.0, 2.01, 0.5)
+#: Blur and integration time are drawn in 5 equal-probability bins of their
+#: distributions, each participant taking their bin's median (these z-scores):
+#: participants in the same bins share one computed percept.
+BINS = 5
+Z_BINS = np.array([float(ndtri((i + 0.5) / BINS)) for i in range(BINS)])
 
 
 
@@ -109,7 +112,6 @@ def uniform_stream(*parts: object) -> np.random.Generator:
 
 
 def normals(rng: np.random.Generator, shape) -> np.ndarray:
-    from scipy.special import ndtri
     u = rng.random(shape)
     return ndtri(np.clip(u, 1e-300, 1.0 - 2.0 ** -53))
 
@@ -134,16 +136,15 @@ def draw_participant(params: ObserverParams, site: str, seed: int, participant: 
     """The parameters of ``participant`` under ``seed``: the same on every machine.
 
     Blur, integration time, efficiency and decision noise are log-normal with their
-    medians at the defaults; blur's and integration time's z-scores are
-    rounded to the half-SD grid ``Z_GRID`` (so that percepts can be shared);
+    medians at the defaults; blur and integration time take the median of
+    their bin among ``BINS`` equal-probability bins (so percepts can be shared);
     the intensity levels are normal, rounded to a whole number; the lapse rate
     logit-normal; the rating bias normal around 0;
     ``typical=True`` gives the population's central participant.
     """
     pop = params.population
     z = np.zeros(7) if typical else normals(uniform_stream("population", seed, participant), 7)
-    zt = float(Z_GRID[np.argmin(np.abs(Z_GRID - z[0]))])
-    zi = float(Z_GRID[np.argmin(np.abs(Z_GRID - z[1]))])
+    zt, zi = (float(Z_BINS[min(int(ndtr(v) * BINS), BINS - 1)]) for v in z[:2])
 
     def lognormal(mean: float, cv: float, zz: float) -> float:
         s = np.sqrt(np.log1p(cv * cv))

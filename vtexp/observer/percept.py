@@ -43,7 +43,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..model import DeviceProfile, PlayReport
 
@@ -118,12 +117,36 @@ def activity(reports: list[PlayReport], profile: DeviceProfile, skin: Skin,
             lo = np.maximum(edges[b0:b1], t0)
             hi = np.minimum(edges[b0 + 1:b1 + 1], t1)
             x[k, i, b0:b1] += amp * np.clip(hi - lo, 0, None) / dt
+    return leaky(x, dt, tau)
+
+
+def leaky(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """(P2) on a grid of step ``dt`` along the last axis: u[n] = a u[n-1] + (1 - a) x[n]."""
     alpha = np.exp(-dt / tau)
-    return lfilter([1.0 - alpha], [1.0, -alpha], x, axis=2)
+    u = np.empty_like(x)
+    acc = np.zeros(x.shape[:-1])
+    for n in range(x.shape[-1]):
+        acc = alpha * acc + (1.0 - alpha) * x[..., n]
+        u[..., n] = acc
+    return u
+
+
+_FACTORS: dict[tuple, np.ndarray] = {}
 
 
 def overlap_factor(profile: DeviceProfile, skin: Skin, support: np.ndarray) -> np.ndarray:
-    """A square root R (R^T R = (P4) / TPT^2) over the ``support`` actuators."""
+    """A square root R (R^T R = (P4) / TPT^2) over the ``support`` actuators (cached)."""
+    key = (profile.geometry.cols, profile.geometry.pitch_mm, skin.two_point_threshold_mm,
+           support.tobytes())
+    R = _FACTORS.get(key)
+    if R is None:
+        if len(_FACTORS) > 4096:
+            _FACTORS.clear()
+        R = _FACTORS[key] = _overlap_factor(profile, skin, support)
+    return R
+
+
+def _overlap_factor(profile: DeviceProfile, skin: Skin, support: np.ndarray) -> np.ndarray:
     cols, pitch = profile.geometry.cols, profile.geometry.pitch_mm
     rc = np.stack([support // cols, support % cols], axis=1).astype(float) * pitch
     d2 = ((rc[:, None, :] - rc[None, :, :]) ** 2).sum(axis=2)
@@ -135,10 +158,12 @@ def overlap_factor(profile: DeviceProfile, skin: Skin, support: np.ndarray) -> n
 
 def features(reports: list[PlayReport], profile: DeviceProfile, skin: Skin,
              support: np.ndarray) -> np.ndarray:
-    """One vector per report; ``|f_i - f_j|^2`` is the integral of (P3) over TPT^2 tau."""
+    """One vector per report (float32); ``|f_i - f_j|^2`` is the integral of (P3) over
+    TPT^2 tau."""
     u = activity(reports, profile, skin, support)          # (k, a, t)
     R = overlap_factor(profile, skin, support)              # (a, a)
-    w = np.einsum("ba,kat->kbt", R, u) * np.sqrt(skin.dt_ms / skin.integration_ms)
+    u *= np.sqrt(skin.dt_ms / skin.integration_ms)
+    w = np.matmul(R.astype(np.float32), u.astype(np.float32))
     return w.reshape(len(reports), -1)
 
 
@@ -177,6 +202,5 @@ def noise_density(skin: Skin) -> float:
     n = max(1, int(round(skin.integration_ms / skin.dt_ms)))
     box = np.zeros(n + int(np.ceil(6 * skin.integration_ms / skin.dt_ms)))
     box[:n] = 1.0
-    alpha = np.exp(-skin.dt_ms / skin.integration_ms)
-    u = lfilter([1.0 - alpha], [1.0, -alpha], box)
+    u = leaky(box, skin.dt_ms, skin.integration_ms)
     return float(spatial * (u * u).sum() * skin.dt_ms / skin.integration_ms)

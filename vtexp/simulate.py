@@ -1,0 +1,301 @@
+"""Whole studies of model participants, and the power of an experiment's declared analyses.
+
+``vtexp simulate EXPERIMENT --participants N --studies M`` runs M studies of N
+model participants each. Every condition goes through the real pipeline once
+(stimulus, encoding, coding, safety check, played on the sim device); each
+participant gets the trial list a real session would give them
+(:func:`vtexp.design.trial_list`) and answers every trial as
+:class:`vtexp.observer.ModelObserver` would in a session (the same uniforms, the
+same decision), into a table with the columns of :func:`vtexp.analysis.load.load_sessions`.
+The experiment's declared ANOVAs (``rm_anova_batch``, every study at once) and
+Friedman tests run on each study; the power of an effect is the share of studies
+with p < alpha, with a Wilson 95 % interval. Studies are spread over every core.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .analysis.anova import MissingCellsWarning, rm_anova_batch
+from .analysis.ordinal import friedman
+from .analysis.pipeline import _subset, participant_measures
+from .analysis.spec import AnalysisSpec, default_spec
+from .compile import Condition, compile_conditions
+from .design import trial_list
+from .devices.sim import SimDevice
+from .errors import InputError
+from .experiment import LoadedExperiment, load_experiment
+from .model import PlayReport
+from .observer.model import ObserverModel, question_columns
+from .responders.base import correct_answer
+
+
+@dataclass
+class Setup:
+    """An experiment made ready for simulation: conditions compiled and played once."""
+
+    lx: LoadedExperiment
+    model: ObserverModel
+    conditions: list[Condition]
+    played: list[PlayReport]
+    spec: AnalysisSpec
+
+    @classmethod
+    def load(cls, path: Path | str, *, params_file=None, overrides: dict | None = None) -> Setup:
+        lx = load_experiment(path)
+        model = ObserverModel.for_experiment(lx, params_file=params_file, overrides=overrides)
+        conditions = compile_conditions(lx, model.profile)
+        played = []
+        with SimDevice(model.profile) as dev:
+            for c in conditions:
+                played.append(dev.play(c.schedule))
+        exp = lx.experiment
+        scored = any(q.kind == "choice" and q.correct is not None for q in exp.asked())
+        spec = exp.analysis or default_spec(list(exp.factors), exp.stimulus_factor(), scored)
+        return cls(lx, model, conditions, played, spec)
+
+    @property
+    def factors(self) -> list[str]:
+        return list(self.lx.experiment.factors)
+
+
+def participant_id(study: int, i: int) -> str:
+    return f"s{study}p{i + 1}"
+
+
+def simulate_participant(setup: Setup, seed: int, participant: str, session: int = 1,
+                         *, typical: bool = False) -> list[dict]:
+    """One participant's main trials, one row per trial and question (as a session logs them)."""
+    exp, model = setup.lx.experiment, setup.model
+    trials, _ = trial_list(exp, setup.conditions, participant, session)
+    who = model.participant(seed, participant, typical=typical)
+    U = model.uniforms(seed, participant, session, len(trials))
+    questions = exp.asked()
+    offsets = np.cumsum([0] + [question_columns(q) for q in questions])
+    rows = []
+    for t in trials:
+        if t.practice:
+            continue
+        c = t.condition
+        for qi, q in enumerate(questions):
+            u = U[t.number - 1, offsets[qi]:offsets[qi + 1]]
+            ans = model.answer(q, c, setup.played[c.index], who, u,
+                               played_key=("condition", c.index))
+            right = correct_answer(q, t) if q.kind == "choice" else None
+            rows.append({"participant": participant, **t.levels, "stimulus": t.stimulus,
+                         "question": q.name, "trial": t.number, "answer": ans,
+                         "correct": None if right is None else float(ans == right)})
+    return rows
+
+
+def simulate_studies(setup: Setup, seed: int, studies: list[int], n: int, *,
+                     typical: bool = False) -> pd.DataFrame:
+    """The trials of ``studies`` (study numbers) of ``n`` participants each, one table."""
+    rows = []
+    for s in studies:
+        for i in range(n):
+            for r in simulate_participant(setup, seed, participant_id(s, i), typical=typical):
+                r["study"] = s
+                rows.append(r)
+    df = pd.DataFrame(rows)
+    for f, spec in setup.lx.experiment.factors.items():
+        df[f] = pd.Categorical(df[f], categories=spec.level_names, ordered=True)
+    return df
+
+
+# --------------------------------------------------------------------------- tests per study
+
+def effect_tests(setup: Setup, trials: pd.DataFrame) -> pd.DataFrame:
+    """p of every declared ANOVA effect and Friedman test, for each study in ``trials``."""
+    out = []
+    spec = setup.spec
+    for i, a in enumerate(spec.anova):
+        within = a.within or setup.factors
+        m = participant_measures(_subset(trials, a.where), a.dv, within)
+        m["study"] = m["participant"].map(trials.drop_duplicates("participant")
+                                          .set_index("participant")["study"])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", MissingCellsWarning)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            t = rm_anova_batch(m, a.dv, within, "participant", "study")
+        # the correction the report uses ('auto': Greenhouse-Geisser when Mauchly's p < .05)
+        gg = (t["df1"] > 1) & ~(t["mauchly_p"] >= 0.05) if a.correction == "auto" else \
+            pd.Series(a.correction == "GG", index=t.index) & (t["df1"] > 1)
+        p = np.where(gg, t["p_gg"], t["p"])
+        if a.correction == "HF":
+            p = np.where(t["df1"] > 1, t["p_hf"], t["p"])
+        where = "".join(f", {k} = {v}" for k, v in a.where.items())
+        out.append(pd.DataFrame({
+            "study": t["study"], "test": f"anova {i + 1}",
+            "effect": [f"{e.replace(':', ' × ')} ({a.dv}{where})" for e in t["effect"]],
+            "p": p, "pes": t["pes"]}))
+    for i, o in enumerate(spec.ordinal):
+        m = participant_measures(_subset(trials, o.where), o.dv, [o.factor])
+        where = "".join(f", {k} = {v}" for k, v in o.where.items())
+        for s, ms in m.groupby(trials.drop_duplicates("participant").set_index("participant")
+                               ["study"].reindex(m["participant"]).to_numpy()):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                try:
+                    p = float(friedman(ms, o.dv, o.factor, "participant").iloc[0]["p"])
+                except (InputError, ValueError):
+                    p = float("nan")
+            out.append(pd.DataFrame({"study": [s], "test": f"friedman {i + 1}",
+                                     "effect": [f"{o.factor} (Friedman, {o.dv}{where})"],
+                                     "p": [p], "pes": [float("nan")]}))
+    return pd.concat(out, ignore_index=True) if out else pd.DataFrame(
+        columns=["study", "test", "effect", "p", "pes"])
+
+
+def condition_means(setup: Setup, trials: pd.DataFrame) -> pd.DataFrame:
+    """Sums behind the predicted mean per condition and question (rate, or numeric answer)."""
+    t = trials.copy()
+    t["value"] = np.where(t["correct"].notna(), t["correct"],
+                          pd.to_numeric(t["answer"], errors="coerce"))
+    t["measure"] = np.where(t["correct"].notna(), "rate", "mean answer")
+    g = t.groupby(["question", "measure", *setup.factors], observed=True)["value"]
+    return g.agg(total="sum", count="count").reset_index()
+
+
+# --------------------------------------------------------------------------- workers
+_SETUP: Setup | None = None
+
+
+def _init(path: str, params_file, overrides) -> None:
+    global _SETUP
+    _SETUP = Setup.load(path, params_file=params_file, overrides=overrides)
+
+
+def _work(args) -> tuple[pd.DataFrame, pd.DataFrame, int]:
+    seed, studies, n = args
+    trials = simulate_studies(_SETUP, seed, studies, n)
+    return effect_tests(_SETUP, trials), condition_means(_SETUP, trials), len(studies)
+
+
+def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson score interval of a proportion k / n (95 % by default)."""
+    if n == 0:
+        return float("nan"), float("nan")
+    p = k / n
+    d = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / d
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    return max(0.0, c - h), min(1.0, c + h)
+
+
+@dataclass
+class PowerResult:
+    n: int
+    studies: int
+    alpha: float
+    table: pd.DataFrame          # effect, power, ci_low, ci_high, median_p, mean_pes
+    means: pd.DataFrame          # predicted mean per condition
+    seconds: float
+
+
+def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, seed: int = 0,
+              workers: int | None = None, params_file=None, overrides: dict | None = None,
+              progress=None, first_study: int = 0) -> PowerResult:
+    """Simulate ``studies`` studies of ``n`` participants and test each (see module doc)."""
+    import time
+
+    if n < 2:
+        raise InputError("a study needs at least 2 participants", key="--participants")
+    if studies < 1:
+        raise InputError("give at least 1 study", key="--studies")
+    t0 = time.perf_counter()
+    workers = workers or os.cpu_count() or 1
+    ids = list(range(first_study, first_study + studies))
+    size = max(1, min(50, math.ceil(studies / (workers * 6))))
+    chunks = [ids[i:i + size] for i in range(0, len(ids), size)]
+    tests, means = [], []
+    args = [(seed, c, n) for c in chunks]
+    if workers == 1:
+        _init(str(path), params_file, overrides)
+        results = map(_work, args)
+        pool = None
+    else:
+        pool = ProcessPoolExecutor(workers, initializer=_init,
+                                   initargs=(str(path), params_file, overrides))
+        results = pool.map(_work, args)
+    try:
+        for t, m, k in results:
+            tests.append(t)
+            means.append(m)
+            if progress is not None:
+                progress(k)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    tests_df = pd.concat(tests, ignore_index=True)
+    rows = []
+    for (test, effect), g in tests_df.groupby(["test", "effect"], sort=False):
+        valid = g["p"].notna()
+        k, m = int((g.loc[valid, "p"] < alpha).sum()), int(valid.sum())
+        lo, hi = wilson(k, m)
+        rows.append({"effect": effect, "test": test, "power": k / m if m else float("nan"),
+                     "ci_low": lo, "ci_high": hi, "studies": m,
+                     "median_p": float(g["p"].median()),
+                     "mean_pes": float(g["pes"].mean())})
+    table = pd.DataFrame(rows)
+    mdf = pd.concat(means, ignore_index=True)
+    keys = [c for c in mdf.columns if c not in ("total", "count")]
+    mdf = mdf.groupby(keys, observed=True, sort=False)[["total", "count"]].sum().reset_index()
+    mdf["predicted"] = mdf["total"] / mdf["count"]
+    mdf = mdf.drop(columns=["total"]).rename(columns={"count": "trials"})
+    return PowerResult(n, studies, alpha, table, mdf, time.perf_counter() - t0)
+
+
+def smallest_n(path: Path | str, target: float, studies: int, *, alpha: float = 0.05,
+               seed: int = 0, n_max: int = 200, workers: int | None = None,
+               params_file=None, overrides: dict | None = None, on_step=None
+               ) -> tuple[pd.DataFrame, dict[int, PowerResult]]:
+    """For each effect, the smallest N whose simulated power reaches ``target``.
+
+    N doubles from 4 until every effect reaches the target (or ``n_max``), then
+    each effect's N is found by bisection between the last N below and the first
+    at or above. Each N is simulated once with fresh studies.
+    """
+    results: dict[int, PowerResult] = {}
+
+    def at(n: int) -> pd.Series:
+        if n not in results:
+            results[n] = run_power(path, n, studies, alpha=alpha, seed=seed, workers=workers,
+                                   params_file=params_file, overrides=overrides,
+                                   first_study=n * 1_000_000)
+            if on_step:
+                on_step(n, results[n])
+        return results[n].table.set_index("effect")["power"]
+
+    n, lows = 4, {}
+    while True:
+        power = at(n)
+        if (power >= target).all() or n >= n_max:
+            break
+        lows = {e: n for e in power.index if power[e] < target}
+        n = min(2 * n, n_max)
+    out = []
+    for e in at(4).index:
+        hi = next((m for m in sorted(results) if at(m)[e] >= target), None)
+        if hi is None:
+            out.append({"effect": e, "smallest_n": None, "power": float(at(n_max)[e])
+                        if n_max in results else float("nan")})
+            continue
+        lo = max((m for m in sorted(results) if m < hi and at(m)[e] < target), default=None)
+        while lo is not None and hi - lo > 1:
+            mid = (lo + hi) // 2
+            if at(mid)[e] >= target:
+                hi = mid
+            else:
+                lo = mid
+        out.append({"effect": e, "smallest_n": hi, "power": float(at(hi)[e])})
+    del lows
+    return pd.DataFrame(out), results
