@@ -1,0 +1,129 @@
+"""``vtexp simulate``: the power of an experiment's analyses, from model participants."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from .errors import InputError
+
+
+def add_parser(sub) -> None:
+    s = sub.add_parser(
+        "simulate", help="run whole studies of model participants: power of each effect",
+        description="Run M simulated studies of N model participants each through the "
+                    "experiment's real pipeline and declared analyses, and report for each "
+                    "effect the share of studies with p < alpha (power, 95 %% Wilson "
+                    "interval) and the predicted mean of every condition.")
+    s.add_argument("file", metavar="EXPERIMENT")
+    s.add_argument("--participants", "-n", type=int, default=15, metavar="N",
+                   help="participants per study (default 15)")
+    s.add_argument("--studies", "-m", type=int, default=200, metavar="M",
+                   help="simulated studies (default 200)")
+    s.add_argument("--alpha", type=float, default=0.05, help="significance level (0.05)")
+    s.add_argument("--target-power", type=float, metavar="P",
+                   help="also find, for each effect, the smallest N whose power reaches P")
+    s.add_argument("--max-participants", type=int, default=200, metavar="N",
+                   help="give up the --target-power search above N (default 200)")
+    s.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    s.add_argument("--observer", metavar="FILE",
+                   help="observer parameters (default protocols/observers/default.yaml)")
+    s.add_argument("--workers", type=int, default=0,
+                   help="processes (default: one per core)")
+    s.add_argument("--json", metavar="FILE", help="also write the results as JSON")
+    s.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+
+
+def _progress(total: int, quiet: bool, label: str):
+    """A rich progress bar on stderr; returns (advance, stop)."""
+    if quiet:
+        return (lambda k: None), (lambda: None)
+    from rich.console import Console
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                               TimeElapsedColumn, TimeRemainingColumn)
+
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TimeElapsedColumn(), TimeRemainingColumn(),
+                   console=Console(stderr=True), transient=False)
+    task = bar.add_task(label, total=total)
+    bar.start()
+    return (lambda k: bar.advance(task, k)), bar.stop
+
+
+def _print_power(res, out=print) -> None:
+    out(f"\nPower at N = {res.n} ({res.studies} studies, alpha = {res.alpha}; "
+        f"{res.seconds:.1f} s):")
+    out(f"  {'effect':<58} {'power':>6}  {'95% CI':<13} {'median p':>9} {'mean η²p':>9}")
+    for _, r in res.table.iterrows():
+        pes = "" if r["mean_pes"] != r["mean_pes"] else f"{r['mean_pes']:.3f}"
+        out(f"  {r['effect']:<58} {r['power']:6.3f}  [{r['ci_low']:.3f}, {r['ci_high']:.3f}]"
+            f" {r['median_p']:9.3g} {pes:>9}")
+
+
+def _print_means(res, factors: list[str], out=print) -> None:
+    out("\nPredicted mean per condition (all simulated trials):")
+    t = res.means
+    for (q, meas), g in t.groupby(["question", "measure"], sort=False):
+        out(f"  {q} ({meas}):")
+        for _, r in g.iterrows():
+            lv = ", ".join(f"{f}={r[f]}" for f in factors if f in r and pd.notna(r[f]))
+            out(f"    {lv:<58} {r['predicted']:.3f}")
+
+
+def cmd_simulate(args) -> int:
+    from .experiment import load_experiment
+    from .simulate import run_power, smallest_n
+
+    if not 0 < args.alpha < 1:
+        raise InputError("alpha must be between 0 and 1", key="--alpha")
+    if args.target_power is not None and not 0 < args.target_power < 1:
+        raise InputError("the target power must be between 0 and 1", key="--target-power")
+    lx = load_experiment(args.file)            # clear errors before any worker starts
+    factors = list(lx.experiment.factors)
+    workers = args.workers or os.cpu_count() or 1
+    print(f"{lx.experiment.name}: {args.studies} studies of {args.participants} model "
+          f"participants, {workers} processes", file=sys.stderr)
+    advance, stop = _progress(args.studies, args.quiet, f"N = {args.participants}")
+    try:
+        res = run_power(args.file, args.participants, args.studies, alpha=args.alpha,
+                        seed=args.seed, workers=workers, params_file=args.observer,
+                        progress=advance)
+    finally:
+        stop()
+    _print_power(res)
+    _print_means(res, factors)
+    doc = {"experiment": lx.experiment.name, "experiment_sha256": lx.sha256,
+           "participants": res.n, "studies": res.studies, "alpha": res.alpha,
+           "seed": args.seed, "observer": args.observer or "protocols/observers/default.yaml",
+           "seconds": round(res.seconds, 2), "workers": workers,
+           "power": res.table.to_dict(orient="records"),
+           "predicted": res.means.astype(object).where(res.means.notna(), None)
+           .to_dict(orient="records")}
+    if args.target_power is not None:
+        print(f"\nSearching the smallest N with power >= {args.target_power} "
+              f"({args.studies} studies per N)...", file=sys.stderr)
+
+        def step(n, r):
+            if not args.quiet:
+                print(f"  N = {n}: " + ", ".join(f"{p:.2f}" for p in r.table["power"])
+                      + f"  ({r.seconds:.1f} s)", file=sys.stderr)
+        table, _ = smallest_n(args.file, args.target_power, args.studies, alpha=args.alpha,
+                              seed=args.seed, n_max=args.max_participants, workers=workers,
+                              params_file=args.observer, on_step=step)
+        print(f"\nSmallest N for power >= {args.target_power}:")
+        for _, r in table.iterrows():
+            n = "not reached by N = %d" % args.max_participants if r["smallest_n"] is None \
+                or r["smallest_n"] != r["smallest_n"] else f"N = {int(r['smallest_n'])}"
+            print(f"  {r['effect']:<58} {n}  (power {r['power']:.3f})")
+        doc["target_power"] = args.target_power
+        doc["smallest_n"] = table.astype(object).where(table.notna(), None) \
+            .to_dict(orient="records")
+    if args.json:
+        Path(args.json).write_text(json.dumps(doc, indent=2, default=str) + "\n",
+                                   encoding="utf-8")
+        print(f"\nwrote {args.json}", file=sys.stderr)
+    return 0
