@@ -2,8 +2,9 @@
 
 - ``list``: the serial ports found;
 - ``check --device serial:PORT --profile NAME``: handshake, firmware, round-trip
-  latency, then every actuator in turn at a low level, asking whether it moved
-  (``--yes`` plays them all without asking, for scripts);
+  latency and every actuator off (:func:`check_ready`, which ``vtexp run`` also
+  makes before the first trial), then every actuator in turn at a low level,
+  asking whether it moved (``--yes`` plays them all without asking, for scripts);
 - ``monitor --device serial:PORT``: a tap that decodes and prints the traffic;
 - ``emulate --profile NAME``: an emulated device on a pseudo-terminal, until
   stopped (Ctrl-C or SIGTERM), optionally with line faults.
@@ -109,6 +110,75 @@ def _percentile(xs: list[float], q: float) -> float:
     return s[lo] + (s[hi] - s[lo]) * (k - lo)
 
 
+def identity(dev, profile) -> list[str]:
+    """What the open device reports about itself, checked against ``profile``.
+
+    Raises :class:`~vtexp.errors.DeviceError` if the device is not the array the
+    profile describes (the serial backend already refuses one at its handshake).
+    """
+    from ..errors import DeviceError
+
+    info = dev.info()
+    if (info.profile, info.rows, info.cols) != (profile.name, profile.rows, profile.cols):
+        raise DeviceError(f"the device opened reports {info.rows} x {info.cols} actuators "
+                          f"(profile {info.profile!r}), but profile {profile.name!r} "
+                          f"describes {profile.rows} x {profile.cols}. Nothing was played.")
+    lines = [f"device:   {info.backend} {info.port or ''}".rstrip(),
+             f"firmware: {info.firmware}   protocol: {info.protocol}",
+             (f"geometry: {info.rows} x {info.cols} as profile {profile.name} expects "
+              f"({profile.actuator}, {profile.drive.kind})")]
+    if info.details:
+        lines.append("details:  " + ", ".join(f"{k}={v}" for k, v in info.details.items()))
+    return lines
+
+
+def round_trip(dev, pings: int) -> str | None:
+    """Time ``pings`` heartbeats over the link; None for a device without one (sim)."""
+    if not hasattr(dev, "ping") or pings <= 0:
+        return None
+    rtts = [dev.ping() for _ in range(pings)]
+    return (f"round trip ({len(rtts)} heartbeats): p50 {_percentile(rtts, 0.5):.2f} ms, "
+            f"p95 {_percentile(rtts, 0.95):.2f} ms, max {max(rtts):.2f} ms")
+
+
+def all_off(dev) -> str:
+    """Turn every actuator off and have the device confirm it; raise DeviceError if not."""
+    from ..errors import DeviceError
+    from .wire import DeviceState
+
+    dev.all_off()
+    if hasattr(dev, "status"):                 # a device on the wire: ask it
+        state = dev.status().state
+        if state != DeviceState.IDLE:
+            names = {v: k.lower() for k, v in vars(DeviceState).items() if k.isupper()}
+            raise DeviceError(f"the device is {names.get(state, state)} after ALL_OFF, not "
+                              "idle; check it with 'vtexp device check' before any trial")
+        emulator = getattr(dev, "emulator", None)
+        if emulator is not None and not emulator.all_outputs_off():
+            raise DeviceError("the emulated device still drives an output after ALL_OFF")
+        return "actuators: all off (ALL_OFF acknowledged, the device reports it is idle)"
+    state = getattr(dev, "state", None)         # the sim's record of every actuator
+    if state is not None and state.any():
+        raise DeviceError("the simulated device still drives an actuator after all-off")
+    return "actuators: all off"
+
+
+def check_ready(dev, profile, *, pings: int = 20, say=_out) -> None:
+    """Is the open device ready to play? The first part of ``vtexp device check``, and
+    what ``vtexp run`` checks before the first trial. It plays nothing.
+
+    The device's identity against the profile, the link's round trip, and every
+    actuator off. Each result is passed to ``say`` as it comes; a failure raises
+    :class:`~vtexp.errors.DeviceError` (or the device's own error).
+    """
+    for line in identity(dev, profile):
+        say(line)
+    line = round_trip(dev, pings)
+    if line:
+        say(line)
+    say(all_off(dev))
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     from ..errors import InputError
     from ..model import DeviceProfile, Schedule
@@ -121,17 +191,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     options = {"baudrate": args.baud} if args.device.startswith("serial:") else {}
     dev = open_device(args.device, profile, **options)
     with dev:
-        info = dev.info()
-        _out(f"device:   {info.backend} {info.port or ''}".rstrip())
-        _out(f"firmware: {info.firmware}   protocol: {info.protocol}")
-        _out(f"geometry: {info.rows} x {info.cols} as profile {profile.name} expects "
-             f"({profile.actuator}, {profile.drive.kind})")
-        if info.details:
-            _out("details:  " + ", ".join(f"{k}={v}" for k, v in info.details.items()))
-        if hasattr(dev, "ping") and args.pings > 0:
-            rtts = [dev.ping() for _ in range(args.pings)]
-            _out(f"round trip ({len(rtts)} heartbeats): p50 {_percentile(rtts, 0.5):.2f} ms, "
-                 f"p95 {_percentile(rtts, 0.95):.2f} ms, max {max(rtts):.2f} ms")
+        check_ready(dev, profile, pings=args.pings)
         n = profile.rows * profile.cols
         low = _low_pulse(profile, 0, 0, on_ms)
         what = (f"level {low.level}" if low.level is not None else
