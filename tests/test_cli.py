@@ -196,3 +196,139 @@ def test_console_responder_through_standard_input(tmp_path, minimal_yaml):
     assert r.returncode == 130 and "input ended" in r.stderr and "Traceback" not in r.stderr
     meta = json.loads(next((tmp_path / "d").rglob("sub-02/ses-1/session.json")).read_text())
     assert meta["status"] == "aborted" and meta["n_trials_logged"] == 1
+
+
+# --------------------------------------------------------------------------- the experimenter's side of run
+
+def _at_a_terminal(args: list[str], answers: str, timeout: float = 60):
+    """Run ``vtexp ARGS`` with a pseudo-terminal as standard input holding ``answers``."""
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+    master, slave = pty.openpty()
+    try:
+        os.write(master, answers.encode())      # queued, read a line at a time
+        env = dict(os.environ, PYTHONPATH=str(ROOT))
+        return subprocess.run([sys.executable, "-m", "vtexp", *args], stdin=slave,
+                              capture_output=True, text=True, env=env, timeout=timeout,
+                              check=False)
+    finally:
+        os.close(slave)
+        os.close(master)
+
+
+def test_run_without_a_participant_and_no_terminal_is_one_message(cli, tmp_path, minimal_yaml):
+    from conftest import write_experiment
+    f = write_experiment(tmp_path, minimal_yaml)
+    r = cli("run", str(f), "--responder", "scripted:correct", "--data", str(tmp_path / "d"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.splitlines() == [
+        ("vtexp: error: --participant: missing: give the participant id (e.g. --participant "
+         "01), or run 'vtexp run' at a terminal to be asked for it")]
+    assert not (tmp_path / "d").exists()
+    r = cli("run", str(f), "-p", "01", "--test-pulse", "--responder", "scripted:correct",
+            "--data", str(tmp_path / "d"))
+    assert r.returncode == 2 and "--test-pulse: asks the experimenter at a terminal" in r.stderr
+
+
+def test_run_asks_the_experimenter_at_a_terminal(tmp_path, minimal_yaml):
+    from conftest import write_experiment
+    f = write_experiment(tmp_path, minimal_yaml)
+    run = ["run", str(f), "--responder", "scripted:correct", "--data", str(tmp_path / "d"),
+           "--quiet"]
+    # A bad id is refused with the reason and asked again; the session defaults to 1.
+    r = _at_a_terminal(run + ["--max-trials", "1"], "a/b\n07\n\n")
+    assert r.returncode == 0, r.stderr
+    assert "Participant id: " in r.stdout and "'a/b' is not a plain token" in r.stdout
+    assert "Participant 07 has no sessions yet" in r.stdout and "Session [1]: " in r.stdout
+    assert "session aborted: 1 trials logged" in r.stdout
+    assert "stopped after 1 trial as asked (--max-trials 1)" in r.stdout
+    # The sessions that exist are shown; the unfinished one is pointed to --resume; a
+    # session that exists is refused at the prompt; the next free number is the default.
+    r = _at_a_terminal(run, "07\n1\n\n")
+    assert r.returncode == 0, r.stderr
+    assert "Sessions of participant 07 already in" in r.stdout
+    assert "ses-1  aborted, 1 of 4 trials" in r.stdout
+    assert (f"Session 1 did not finish. To continue it, stop here (Ctrl-C) and run 'vtexp run "
+            f"{f} --participant 07 --session 1 --resume'.") in r.stdout
+    assert "Session [2]: " in r.stdout and "session 1 already exists (aborted" in r.stdout
+    assert "session completed: 4 trials logged" in r.stdout and "sub-07/ses-2" in r.stdout
+    # With --resume the default is the unfinished session.
+    r = _at_a_terminal(run + ["--resume"], "07\n\n")
+    assert r.returncode == 0, r.stderr
+    assert "Session to resume [1]: " in r.stdout and "session completed: 3 trials" in r.stdout
+    # A participant id given on the command line is not asked again; session 1 exists.
+    r = _at_a_terminal(run + ["-p", "07"], "")
+    assert r.returncode == 2 and "Participant id" not in r.stdout
+    assert "session 1 of participant 07 already exists" in r.stderr
+    assert "(completed, 4 of 4 trials)" in r.stderr and "the next free one is 3" in r.stderr
+
+
+def test_run_checks_the_device_before_the_first_trial(cli, tmp_path, minimal_yaml):
+    from conftest import write_experiment
+    f = write_experiment(tmp_path, minimal_yaml)
+    r = cli("run", str(f), "-p", "01", "--responder", "scripted:correct", "--data",
+            str(tmp_path / "d"), "--device", "emulator", "--quiet")
+    assert r.returncode == 0, r.stderr
+    out = r.stdout.splitlines()
+    assert out[0] == "device check before the first trial:"
+    assert out[1].startswith("  device:   emulator /dev/")
+    assert out[2].startswith("  firmware: vtexp-emulator") and "vtexp-wire/1" in out[2]
+    assert out[3] == "  geometry: 8 x 6 as profile vest_6x8 expects (coin_tactor, levels)"
+    assert any(e.startswith("  round trip (20 heartbeats): p50 ") for e in out)
+    assert "  actuators: all off (ALL_OFF acknowledged, the device reports it is idle)" in out
+    assert out[-2] == "device check passed; no actuator is on"
+    assert out[-1].startswith("session completed: 4 trials logged")
+
+
+def test_a_failed_device_check_stops_before_any_trial(tmp_path, minimal_yaml, monkeypatch,
+                                                      capsys):
+    from conftest import write_experiment
+
+    from vtexp import cli
+    from vtexp.devices.sim import SimDevice
+    f = write_experiment(tmp_path, minimal_yaml)
+
+    def stuck(self):                        # all-off does not reach one actuator
+        self.state[:] = 0.0
+        self.state[2, 3] = 1.0
+    monkeypatch.setattr(SimDevice, "_all_off", stuck)
+    rc = cli.main(["run", str(f), "-p", "01", "--responder", "scripted:correct", "--data",
+                   str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert rc == 3
+    assert err.splitlines()[-1] == (
+        "vtexp: error: device check failed, before any trial: the simulated device still "
+        "drives an actuator after all-off. No trial was played and no session data were "
+        "written.")
+    assert not (tmp_path / "d").exists()
+
+
+def test_max_trials_stops_and_the_session_resumes(cli, tmp_path, minimal_yaml):
+    from conftest import write_experiment
+    f = write_experiment(tmp_path, minimal_yaml)
+    run = ["run", str(f), "-p", "01", "--responder", "scripted:correct", "--data",
+           str(tmp_path / "d"), "--quiet"]
+    r = cli(*run, "--max-trials", "0")
+    assert r.returncode == 2 and "--max-trials: must be 1 or more" in r.stderr
+    r = cli(*run, "--max-trials", "3")
+    assert r.returncode == 0, r.stderr
+    assert "session aborted: 3 trials logged" in r.stdout
+    assert (f"stopped after 3 trials as asked (--max-trials 3); to continue: vtexp run {f} "
+            "--participant 01 --session 1 --resume") in r.stdout
+    meta_path = next((tmp_path / "d").rglob("session.json"))
+    meta = json.loads(meta_path.read_text())
+    assert meta["status"] == "aborted" and meta["n_trials_logged"] == 3
+    assert meta["reason"] == "stopped after 3 trials as asked"
+    r = cli("analyze", str(tmp_path / "d"), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    assert "session aborted (stopped after 3 trials as asked)" in r.stderr
+    r = cli(*run, "--resume", "--max-trials", "5")      # more than are left: it completes
+    assert r.returncode == 0, r.stderr
+    assert "session completed: 1 trials logged" in r.stdout
+    meta = json.loads(meta_path.read_text())
+    assert meta["status"] == "completed" and meta["n_trials_logged"] == 4
+    assert meta["resumes"][0]["previous_reason"] == "stopped after 3 trials as asked"

@@ -137,7 +137,7 @@ class _Progress:
 
 
 def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet, conds=None,
-             resume=False):
+             resume=False, *, check_device=False, test_pulse=False, max_trials=None):
     from .devices import open_device
     from .model import DeviceProfile
     from .responders import make_responder
@@ -149,10 +149,187 @@ def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet,
     responder = make_responder(responder_spec, participant, session)
     device = open_device(device_spec, profile)
     with device:
+        if check_device:
+            _check_device(device, profile, test_pulse)
         return run_session(lx, participant, session, device, responder, data, conditions=conds,
                            sinks=(_Progress(quiet),), command=sys.argv,
                            on_device_error=_ask_experimenter if sys.stdin.isatty() else None,
-                           resume=resume)
+                           resume=resume, max_trials=max_trials)
+
+
+def _check_device(device, profile, test_pulse: bool) -> None:
+    """Before the first trial: the device is the profile's, its link answers, all is off.
+
+    Nothing is played unless the experimenter agrees to a test pulse (``--test-pulse``).
+    """
+    from .devices.cli import _low_pulse, check_ready
+    from .errors import DeviceError
+    from .model import Schedule
+
+    _out("device check before the first trial:")
+    try:
+        check_ready(device, profile, say=lambda line: _out(f"  {line}"))
+    except DeviceError as e:
+        raise DeviceError(f"device check failed, before any trial: {e}. No trial was "
+                          "played and no session data were written.") from None
+    if test_pulse:
+        on_ms = min(300.0, profile.limits.max_on_ms)
+        pulse = _low_pulse(profile, 0, 0, on_ms)
+        what = (f"level {pulse.level}" if pulse.level is not None else
+                f"{pulse.train.amplitude_v:g} V, {pulse.train.frequency_hz:g} Hz")
+        if _yes(f"Play a test pulse on actuator (row 0, col 0), {what} for {on_ms:g} ms? "
+                "[y/N] "):
+            device.play(Schedule(device=profile.name, pulses=[pulse]))
+            if not _yes("Was it felt (or seen to move)? [y/N] "):
+                raise DeviceError("the test pulse on actuator (row 0, col 0) was not felt; "
+                                  "the session was not started. Check the device with "
+                                  "'vtexp device check'.")
+        else:
+            _out("  no test pulse played")
+    _out("device check passed; no actuator is on")
+
+
+def _yes(prompt: str) -> bool:
+    try:
+        return input(prompt).strip().lower() in ("y", "yes")
+    except EOFError:
+        return False
+
+
+def _existing_sessions(data, experiment: str, participant: str) -> list[dict]:
+    """The sessions of ``participant`` already in the data folder, by number."""
+    import json
+    import re
+
+    found = []
+    folder = Path(data) / experiment / f"sub-{participant}"
+    for d in folder.glob("ses-*") if folder.is_dir() else ():
+        m = re.fullmatch(r"ses-(\d+)", d.name)
+        if not (m and d.is_dir()):
+            continue
+        try:
+            meta = json.loads((d / "session.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            meta = {}
+        meta = meta if isinstance(meta, dict) else {}
+        found.append({"session": int(m[1]), "status": meta.get("status") or "unreadable",
+                      "logged": meta.get("n_trials_logged"),
+                      "planned": meta.get("n_trials_planned"),
+                      "started": meta.get("started_at") or "", "reason": meta.get("reason")})
+    return sorted(found, key=lambda x: x["session"])
+
+
+def _status_of(x: dict) -> str:
+    status = "did not close (killed?)" if x["status"] == "running" else x["status"]
+    if x["planned"] is None:
+        return f"{status}, no session.json"
+    return f"{status}, {x['logged']} of {x['planned']} trials"
+
+
+def _describe_session(x: dict) -> str:
+    line = f"ses-{x['session']}  {_status_of(x)}"
+    if x["started"]:
+        line += f", started {x['started'][:16].replace('T', ' ')}"
+    return line + (f" ({x['reason']})" if x["reason"] else "")
+
+
+def _who_and_which(args, lx) -> tuple[str, int]:
+    """The participant and session: from the options, else asked at the terminal."""
+    from .errors import SessionAborted, SessionError
+    from .session import check_participant, check_session
+
+    participant, session = args.participant, args.session
+    if participant is None and not sys.stdin.isatty():
+        raise InputError("missing: give the participant id (e.g. --participant 01), or run "
+                         "'vtexp run' at a terminal to be asked for it", key="--participant")
+    exp = lx.experiment
+    try:
+        if participant is None:
+            participant = _ask_participant()
+            existing = _existing_sessions(args.data, exp.name, participant)
+            if session is None:
+                session = _ask_session(participant, existing, args, lx)
+        else:
+            existing = _existing_sessions(args.data, exp.name, participant)
+    except KeyboardInterrupt:
+        raise SessionAborted("stopped at the prompt; nothing was played or written") from None
+    session = 1 if session is None else session
+    check_participant(participant)
+    check_session(session)
+    clash = next((x for x in existing if x["session"] == session), None)
+    if clash and not args.resume:           # say so now, before the device is opened
+        free = max(x["session"] for x in existing) + 1
+        raise SessionError(f"session {session} of participant {participant} already exists "
+                           f"in {Path(args.data) / exp.name / f'sub-{participant}'} "
+                           f"({_status_of(clash)}); nothing was overwritten. Use "
+                           f"--resume to continue it, or another --session number (the "
+                           f"next free one is {free}).")
+    return participant, session
+
+
+def _ask_participant() -> str:
+    from .session import check_participant
+
+    while True:
+        try:
+            answer = input("Participant id: ").strip()
+        except EOFError:
+            raise InputError("missing: no participant id was given",
+                             key="--participant") from None
+        try:
+            return check_participant(answer)
+        except InputError as e:
+            print(f"  {e.message}", flush=True)
+
+
+def _ask_session(participant: str, existing: list[dict], args, lx) -> int:
+    from .errors import SessionError
+    from .session import check_session
+
+    where = Path(args.data) / lx.experiment.name / f"sub-{participant}"
+    unfinished = [x for x in existing if x["status"] != "completed"]
+    if existing:
+        _out(f"Sessions of participant {participant} already in {where}:")
+        for x in existing:
+            _out(f"  {_describe_session(x)}")
+    else:
+        _out(f"Participant {participant} has no sessions yet in {where.parent}.")
+    if args.resume:
+        if not unfinished:
+            raise SessionError(f"participant {participant} has no unfinished session in "
+                               f"{where.parent} to resume (--resume)")
+        default, prompt = unfinished[-1]["session"], "Session to resume"
+    else:
+        default = max((x["session"] for x in existing), default=0) + 1
+        prompt = "Session"
+        if existing and existing[-1]["status"] != "completed":
+            last = existing[-1]["session"]
+            _out(f"Session {last} did not finish. To continue it, stop here (Ctrl-C) and run "
+                 f"'vtexp run {args.file} --participant {participant} --session {last} "
+                 "--resume'.")
+    while True:
+        try:
+            answer = input(f"{prompt} [{default}]: ").strip()
+        except EOFError:
+            raise InputError("missing: no session number was given", key="--session") from None
+        try:
+            session = check_session(int(answer) if answer else default)
+        except ValueError:
+            print(f"  {answer!r} is not a whole number", flush=True)
+            continue
+        except InputError as e:
+            print(f"  {e.message}", flush=True)
+            continue
+        known = next((x for x in existing if x["session"] == session), None)
+        if args.resume and known not in unfinished:
+            print(f"  session {session} is not an unfinished session of participant "
+                  f"{participant}; sessions to resume: "
+                  + ", ".join(str(x["session"]) for x in unfinished), flush=True)
+        elif not args.resume and known is not None:
+            print(f"  session {session} already exists ({_status_of(known)}); choose another "
+                  "number, or stop (Ctrl-C) and continue it with --resume", flush=True)
+        else:
+            return session
 
 
 def _ask_experimenter(error, trial) -> str:
@@ -173,13 +350,24 @@ def _ask_experimenter(error, trial) -> str:
 def cmd_run(args) -> int:
     from .experiment import load_experiment
 
+    if args.max_trials is not None and args.max_trials < 1:
+        raise InputError(f"must be 1 or more (got {args.max_trials})", key="--max-trials")
+    if args.test_pulse and not sys.stdin.isatty():
+        raise InputError("asks the experimenter at a terminal before it plays; standard "
+                         "input is not a terminal", key="--test-pulse")
     lx = load_experiment(args.file)
-    res = _run_one(lx, args.participant, args.session, args.device, args.responder,
-                   args.data, args.quiet, resume=args.resume)
+    participant, session = _who_and_which(args, lx)
+    res = _run_one(lx, participant, session, args.device, args.responder,
+                   args.data, args.quiet, resume=args.resume, check_device=True,
+                   test_pulse=args.test_pulse, max_trials=args.max_trials)
     acc = [r.correct for r in res.records if r.correct is not None]
     n = len({r.trial for r in res.records})
     _out(f"session {res.status}: {n} trials logged in {res.paths.dir}"
          + (f"; {sum(acc)}/{len(acc)} correct" if acc else ""))
+    if res.status == "aborted":             # only --max-trials ends a run this way
+        _out(f"stopped after {n} trial{'' if n == 1 else 's'} as asked (--max-trials "
+             f"{args.max_trials}); to continue: vtexp run {args.file} --participant "
+             f"{participant} --session {session} --resume")
     return 0
 
 
@@ -308,9 +496,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("run", help="run a session")
     s.add_argument("file", metavar="FILE")
-    s.add_argument("--participant", "-p", required=True)
-    s.add_argument("--session", "-s", type=int, default=1)
-    s.add_argument("--device", default="sim", help="device backend (default: sim)")
+    s.add_argument("--participant", "-p",
+                   help="participant id, letters and digits; asked at a terminal if not given")
+    s.add_argument("--session", "-s", type=int,
+                   help="session number (default 1; asked at a terminal with the participant "
+                        "id, showing the sessions that exist)")
+    s.add_argument("--device", default="sim",
+                   help="sim (default), sim:realtime, serial:PORT or emulator; checked before "
+                        "the first trial (identity, round trip, all actuators off)")
     s.add_argument("--responder", required=True,
                    help="who answers: console (in this terminal) | scripted:correct | "
                         "scripted:random | scripted:accuracy=P | scripted:answers=FILE | "
@@ -324,6 +517,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quiet", "-q", action="store_true", help="no per-trial progress")
     s.add_argument("--resume", action="store_true",
                    help="continue this participant's unfinished session at its next trial")
+    s.add_argument("--max-trials", type=int, metavar="N",
+                   help="stop after N trials (status aborted, resumable with --resume)")
+    s.add_argument("--test-pulse", action="store_true",
+                   help="after the device check, offer one low pulse on actuator (row 0, "
+                        "col 0), played only if the experimenter answers y")
     s.set_defaults(func=cmd_run)
 
     s = sub.add_parser("analyze", help="statistics and reports from logged sessions")
