@@ -332,3 +332,41 @@ def test_max_trials_stops_and_the_session_resumes(cli, tmp_path, minimal_yaml):
     meta = json.loads(meta_path.read_text())
     assert meta["status"] == "completed" and meta["n_trials_logged"] == 4
     assert meta["resumes"][0]["previous_reason"] == "stopped after 3 trials as asked"
+
+
+def test_test_pulse_plays_only_when_the_experimenter_says_yes(tmp_path, minimal_yaml):
+    from conftest import write_experiment
+
+    from vtexp.devices.emulator import PtyEmulator
+    from vtexp.model import DeviceProfile
+    f = write_experiment(tmp_path, minimal_yaml)
+    with PtyEmulator.for_profile(DeviceProfile.load("vest_6x8")) as emu:
+        run = ["run", str(f), "--device", f"serial:{emu.port}", "--responder",
+               "scripted:correct", "--data", str(tmp_path / "d"), "--quiet", "--test-pulse",
+               "--max-trials", "1"]
+        r = _at_a_terminal(run + ["-p", "01"], "\n")           # the default is no
+        assert r.returncode == 0, r.stderr
+        assert ("Play a test pulse on actuator (row 0, col 0), level 1 for 300 ms? [y/N] "
+                in r.stdout) and "no test pulse played" in r.stdout
+        plays = _plays(emu.actuations())
+        assert len(plays) == 1 and len(plays[1]) > 2          # the trial's only
+        n = len(emu.actuations())
+        r = _at_a_terminal(run + ["-p", "02"], "y\ny\n")
+        assert r.returncode == 0, r.stderr
+        plays = _plays(emu.actuations()[n:])                   # each run counts from 1
+        assert plays[1] == [(0, 1), (0, 0)] and len(plays) == 2    # then the trial
+        n = len(emu.actuations())
+        r = _at_a_terminal(run + ["-p", "03"], "y\nn\n")        # not felt: no session
+        assert r.returncode == 3 and "the test pulse on actuator (row 0, col 0) was not felt" \
+            in r.stderr
+        assert _plays(emu.actuations()[n:]) == {1: [(0, 1), (0, 0)]}
+        assert not (tmp_path / "d" / "mini" / "sub-03").exists()
+
+
+def _plays(actuations) -> dict[int, list[tuple[int, int]]]:
+    """What each play drove on the emulated vest: (actuator, level) in turn."""
+    plays: dict[int, list[tuple[int, int]]] = {}
+    for a in actuations:
+        if a.cause == "play":
+            plays.setdefault(a.play_id, []).append((a.index, a.setting.level))
+    return plays
