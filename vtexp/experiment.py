@@ -6,6 +6,11 @@ cannot: that names refer to things that exist, that every condition's
 parameters are valid for its pipeline and coding, and that every condition's
 stimulus is safe on the declared device. Errors name the file, the line and
 the key.
+
+The coding may be given inline (``protocol`` + ``params``) or by reference to
+a coding file (``ref``: ``protocols/codings/NAME.yaml`` or a path relative to
+the experiment file), whose parameters the inline ``params`` override; either
+way the loaded :class:`CodingSpec` holds the protocol and the merged parameters.
 """
 
 from __future__ import annotations
@@ -14,8 +19,9 @@ import hashlib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import (AfterValidator, Discriminator, Field, Tag, ValidationError,
-                      field_validator, model_validator)
+from pydantic import (AfterValidator, ConfigDict, Discriminator, Field, PrivateAttr, Tag,
+                      ValidationError, ValidationInfo, computed_field, field_validator,
+                      model_validator)
 from typing_extensions import Self
 
 from .analysis.spec import AnalysisSpec, check_factor_references
@@ -67,9 +73,28 @@ class EncodingSpec(Model):
         return _registered("pipeline", v, PIPELINES)
 
 
-class CodingSpec(Model):
-    protocol: str = Field(description="a name from vtexp.coding.CODINGS")
+def _no_default(schema: dict) -> None:
+    # Absent is not null: an editor should not offer 'protocol: null'.
+    schema.pop("default", None)
 
+
+def _ref_schema(schema: dict) -> None:
+    _no_default(schema)
+    schema["examples"] = available_codings()
+
+
+class CodingFile(Model):
+    """A coding protocol in a file of its own: ``protocols/codings/NAME.yaml``.
+
+    It names a registered protocol and its parameters, with the paper they come
+    from; experiments refer to it by ``coding: {ref: NAME}``.
+    """
+
+    name: Annotated[str, Field(pattern=NAME)] = Field(
+        description="the file's name without .yaml (what 'ref:' gives)")
+    description: str = ""
+    reference: str = Field(description="where the values come from: paper, section, table")
+    protocol: str = Field(description="a name from vtexp.coding.CODINGS")
     params: dict[str, Any] = Field(default_factory=dict)
 
     @field_validator("protocol")
@@ -77,6 +102,155 @@ class CodingSpec(Model):
     def _known(cls, v: str) -> str:
         from .coding import CODINGS
         return _registered("coding protocol", v, CODINGS)
+
+
+class CodingSource(Model):
+    """The coding file an experiment's coding came from (recorded in session.json)."""
+
+    ref: str = Field(description="the reference as the experiment file gives it")
+    file: str = Field(description="the file it resolved to")
+    sha256: str = Field(description="SHA-256 of the file's text")
+
+
+class CodingSpec(Model):
+    """How patterns become pulses: a ``protocol`` with its ``params``, or ``ref`` to a
+    coding file (a name in protocols/codings/, or a path relative to the experiment
+    file) whose parameters ``params`` override. Loaded, both forms have ``protocol``
+    and the merged ``params``; with ``ref``, ``source`` names the file and its SHA-256.
+    """
+
+    model_config = ConfigDict(json_schema_extra={
+        "oneOf": [{"required": ["protocol"]}, {"required": ["ref"]}]})
+
+    protocol: str | None = Field(None, description="a name from vtexp.coding.CODINGS",
+                                 json_schema_extra=_no_default)
+    ref: str | None = Field(
+        None, description="a coding file instead of 'protocol': NAME for "
+                          "protocols/codings/NAME.yaml, or a path to a .yaml file relative "
+                          "to the experiment file",
+        json_schema_extra=_ref_schema)
+    params: dict[str, Any] = Field(
+        default_factory=dict, description="the protocol's parameters; with 'ref', they "
+                                          "override the file's")
+    _source: CodingSource | None = PrivateAttr(None)
+
+    @field_validator("protocol")
+    @classmethod
+    def _known(cls, v: str | None) -> str | None:
+        from .coding import CODINGS
+        return _registered("coding protocol", v, CODINGS)
+
+    @field_validator("ref")
+    @classmethod
+    def _findable(cls, v: str | None, info: ValidationInfo) -> str | None:
+        if v is None:
+            return v
+        if info.data.get("protocol") is not None:
+            raise ValueError("give either 'protocol' (with its 'params') or 'ref' to a "
+                             "coding file, not both")
+        coding_path(v, _base_dir(info))             # raises if there is no such file
+        return v
+
+    @model_validator(mode="after")
+    def _resolve(self, info: ValidationInfo) -> Self:
+        if self.ref is None:
+            if self.protocol is None:
+                raise ValueError("give 'protocol' (a coding protocol, with its 'params') "
+                                 "or 'ref' (a coding file in protocols/codings/)")
+            return self
+        path = coding_path(self.ref, _base_dir(info))
+        cf, sha = load_coding_file(path, referenced_at=_referenced_at(info))
+        self.protocol = cf.protocol
+        self.params = {**cf.params, **self.params}
+        self._source = CodingSource(ref=self.ref, file=str(path.resolve()), sha256=sha)
+        return self
+
+    @computed_field(description="the coding file used, with 'ref' (filled in on loading)")
+    @property
+    def source(self) -> CodingSource | None:
+        return self._source
+
+
+def available_codings() -> list[str]:
+    """Names of the coding files in protocols/codings/."""
+    from .resources import codings_dir
+
+    d = codings_dir()
+    return sorted(p.stem for p in d.glob("*.yaml")) if d.is_dir() else []
+
+
+def coding_path(ref: str, base: Path | None = None) -> Path:
+    """The file ``coding: {ref: ...}`` names; ``ValueError`` if there is none.
+
+    A bare name is ``protocols/codings/NAME.yaml``; anything with a ``/`` or a
+    ``.yaml``/``.yml`` suffix is a path, relative to ``base`` (the experiment
+    file's folder) unless absolute.
+    """
+    from .resources import codings_dir
+
+    if "/" in ref or "\\" in ref or ref.endswith((".yaml", ".yml")):
+        p = Path(ref)
+        if not p.is_absolute() and base is not None:
+            p = base / p
+        if not p.is_file():
+            raise ValueError(f"coding file {str(p)!r} " + ("is a directory" if p.is_dir()
+                                                           else "not found"))
+        return p
+    p = codings_dir() / f"{ref}.yaml"
+    if not p.is_file():
+        raise ValueError(f"unknown coding {ref!r}; known codings: "
+                         f"{', '.join(available_codings()) or 'none'} (or a path to a "
+                         ".yaml file, relative to the experiment file)")
+    return p
+
+
+def load_coding_file(path: str | Path, *, referenced_at: str = "") -> tuple[CodingFile, str]:
+    """Read and check a coding file; return it and the SHA-256 of its text.
+
+    Errors name the coding file, its line and key (and, given ``referenced_at``,
+    the experiment that refers to it).
+    """
+    from .coding import CODINGS
+
+    path = Path(path)
+    suffix = f" (coding file of {referenced_at})" if referenced_at else ""
+    try:
+        loaded = load_yaml(path)
+        if not isinstance(loaded.data, dict):
+            raise InputError("expected a mapping of keys (name:, reference:, protocol:, "
+                             "params:) at the top level", path=loaded.path, line=1)
+        try:
+            cf = CodingFile.model_validate(loaded.data)
+        except ValidationError as exc:
+            raise format_validation_error(exc, loaded) from None
+        if cf.name != path.stem:
+            raise InputError(f"{cf.name!r} differs from the file's name {path.stem!r}; "
+                             "make them the same", path=loaded.path,
+                             line=loaded.line_of(("name",)), key="name")
+        _, params_model = CODINGS[cf.protocol]
+        try:
+            params_model.model_validate(cf.params)
+        except ValidationError as exc:
+            raise format_validation_error(exc, loaded, root=("params",)) from None
+    except InputError as e:
+        if not suffix:
+            raise
+        raise InputError(e.message + suffix, path=e.path, line=e.line, key=e.key) from None
+    return cf, hashlib.sha256(loaded.text.encode("utf-8")).hexdigest()
+
+
+def _base_dir(info: ValidationInfo) -> Path | None:
+    """The experiment file's folder, from the validation context ``{"experiment": LoadedYaml}``."""
+    src = (info.context or {}).get("experiment")
+    return Path(src.path).parent if src is not None else None
+
+
+def _referenced_at(info: ValidationInfo) -> str:
+    src = (info.context or {}).get("experiment")
+    if src is None:
+        return ""
+    line = src.line_of(("coding", "ref"))
+    return f"{src.path}:{line}" if line else str(src.path)
 
 
 class FactorSpec(Model):
@@ -309,7 +483,7 @@ def load_experiment(path: str | Path, *, check_stimuli: bool = True) -> LoadedEx
         raise InputError("expected a mapping of keys (name:, title:, ...) at the top level",
                          path=loaded.path, line=1)
     try:
-        exp = Experiment.model_validate(loaded.data)
+        exp = Experiment.model_validate(loaded.data, context={"experiment": loaded})
     except ValidationError as exc:
         raise format_validation_error(exc, loaded) from None
     lx = LoadedExperiment(exp, loaded)

@@ -33,3 +33,9 @@ def experiments_dir() -> Path:
 
 def devices_dir() -> Path:
     return protocols_dir() / "devices"
+
+
+def codings_dir() -> Path:
+    """Coding-protocol files (``protocols/codings/NAME.yaml``), named by an experiment's
+    ``coding: {ref: NAME}``."""
+    return protocols_dir() / "codings"
