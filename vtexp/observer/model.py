@@ -47,8 +47,9 @@ from .spec import ObserverSpec, TemplateSpec
 FIXED_COLUMNS = 3
 
 
-def _normal(u: np.ndarray) -> np.ndarray:
-    return ndtri(np.clip(u, 1e-300, 1.0 - 2.0 ** -53))
+def _normal(u):
+    """Standard normal deviates from uniforms in [0, 1) (0 maps to a large negative)."""
+    return ndtri(np.maximum(u, 1e-300))
 
 
 def question_columns(question) -> int:
@@ -62,6 +63,7 @@ class _Geometry:
 
     gram: np.ndarray            # D D^T in feature units (without s^2)
     root: np.ndarray            # a square root of gram (xi = root @ z)
+    half: np.ndarray = field(default_factory=lambda: np.zeros(0))   # diag(gram) / 2
     scale: float = 1.0          # 1 / sqrt(N0): s of (M1) is sqrt(eta) times this
     spread: float = 0.0         # |f_high - f_low| (ratings)
     turns: float = 0.0          # winding of the played percept (counts)
@@ -214,7 +216,7 @@ class ObserverModel:
             D = f[:1] - f[1:]
             gram = (D @ D.T).astype(np.float64)
             w, V = np.linalg.eigh(gram)
-            g = _Geometry(gram, V * np.sqrt(np.clip(w, 0, None)),
+            g = _Geometry(gram, V * np.sqrt(np.clip(w, 0, None)), half=np.diag(gram) / 2,
                           scale=float(1.0 / np.sqrt(noise_density(skin))),
                           spread=float(np.linalg.norm((f[2] - f[1]).astype(np.float64))) if question.kind == "rating"
                           else 0.0)
@@ -231,16 +233,15 @@ class ObserverModel:
             lo, hi = question.minimum, question.maximum
             if lapsed:
                 return str(lo + min(int(u[1] * (hi - lo + 1)), hi - lo))
-            n = round(g.turns + self.params.turns_sd * _normal(u[2]))
+            n = round(g.turns + self.params.turns_sd * float(_normal(u[2])))
             return str(int(min(max(n, lo), hi)))
         opts = question.options if question.kind == "choice" else [str(v) for v in question.scale]
         if lapsed:
             return opts[min(int(u[1] * len(opts)), len(opts) - 1)]
         s = g.scale * np.sqrt(who.efficiency)
         k = g.gram.shape[0]
-        z = _normal(u[FIXED_COLUMNS:FIXED_COLUMNS + k])
-        late = _normal(u[FIXED_COLUMNS + k:FIXED_COLUMNS + 2 * k])
-        E = -s * s * np.diag(g.gram) / 2 - s * (g.root @ z) + who.decision_noise * late  # (M1)
+        zz = _normal(u[FIXED_COLUMNS:FIXED_COLUMNS + 2 * k])
+        E = -s * s * g.half - s * (g.root @ zz[:k]) + who.decision_noise * zz[k:]      # (M1)
         if question.kind == "rating":
             spread = s * g.spread
             v = (E[1] - E[0]) / spread if spread > 1e-12 else (E[1] - E[0])
