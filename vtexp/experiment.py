@@ -27,6 +27,7 @@ from typing_extensions import Self
 from .analysis.spec import AnalysisSpec, check_factor_references
 from .errors import InputError
 from .model import Model
+from .observer.spec import ObserverSpec
 from .yamlio import KeyPath, LoadedYaml, format_validation_error, load_yaml
 
 NAME = r"^[a-z][a-z0-9_]*$"
@@ -422,6 +423,8 @@ class Experiment(Model):
         None, description="several questions asked in turn about one stimulus")
     analysis: Annotated[AnalysisSpec | None, AfterValidator(check_factor_references)] = Field(
         None, description="the analyses of the report (vtexp/analysis/spec.py)")
+    observer: ObserverSpec | None = Field(
+        None, description="how a model participant answers (vtexp simulate, vtexp/observer)")
 
     @model_validator(mode="after")
     def _one_question_key(self) -> Self:

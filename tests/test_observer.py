@@ -1,0 +1,185 @@
+"""The model participant on its own, in a session, and the simulator's power against theory."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from vtexp.compile import compile_conditions
+from vtexp.devices.sim import SimDevice
+from vtexp.experiment import load_experiment
+from vtexp.observer import ModelObserver, ObserverModel
+from vtexp.observer.params import load_params
+from vtexp.observer.percept import Skin, features, noise_density
+from vtexp.session import run_session
+from vtexp.simulate import Setup, run_power, simulate_participant, simulate_studies
+
+from conftest import ROOT
+
+GRID = ROOT / "experiments" / "duration_interval_grid.yaml"
+STUDIES = ["six_mode_ball", "duration_interval_grid", "whirlpool", "circle_vs_rectangle",
+           "letters"]
+
+
+def _rate(setup: Setup, n: int, seed: int = 0) -> float:
+    df = simulate_studies(setup, seed, [0], n)
+    return float(df["correct"].mean())
+
+
+def test_the_noise_is_calibrated_by_the_two_point_threshold():
+    """Two one-tau pulses one TPT apart are told apart at d' = 1 (efficiency 1)."""
+    from vtexp.model import DeviceProfile, PlayedPulse, PlayReport
+    prof = DeviceProfile.load("vest_6x8")           # pitch 40 mm
+    skin = Skin(two_point_threshold_mm=40.0, integration_ms=40.0, intensity_levels=8)
+    reps = [PlayReport(device="vest_6x8", started_at_ms=0, duration_ms=40, pulses=[
+        PlayedPulse(row=0, col=c, scheduled_onset_ms=0, onset_ms=0, duration_ms=40, level=2)])
+        for c in (0, 1)]
+    f = features(reps, prof, skin, np.array([0, 1]))
+    d = float(np.linalg.norm((f[0] - f[1]).astype(float)) / math.sqrt(noise_density(skin)))
+    assert d == pytest.approx(1.0, rel=0.02)
+
+
+def test_a_clear_percept_beats_a_blurred_one():
+    """The same shapes on the back, felt by a skin as sharp as a palm's (10 mm) and by one
+    that blurs over four tactors (160 mm): the shapes are farther apart in d' and
+    recognised more often with the clear percept."""
+    sharp = Setup.load(GRID, overrides={"two_point_threshold_mm": {"lower_back": 10.0}})
+    blurred = Setup.load(GRID, overrides={"two_point_threshold_mm": {"lower_back": 160.0}})
+    q = sharp.lx.experiment.asked()[0]
+
+    def mean_d(setup):
+        who = setup.model.participant(0, "A", typical=True)
+        ds = []
+        for c, played in zip(setup.conditions, setup.played, strict=True):
+            g = setup.model.geometry(q, c, played, who)
+            d = np.sqrt(np.diag(g.gram)) * g.scale
+            ds.extend(d[d > 0])
+        return float(np.mean(ds))
+    assert mean_d(sharp) > mean_d(blurred)
+    assert _rate(sharp, 12) > _rate(blurred, 12) + 0.05
+
+
+def test_a_lapse_rate_of_one_answers_at_chance():
+    setup = Setup.load(GRID, overrides={"lapse": 1.0})
+    df = simulate_studies(setup, 3, [0], 20)               # 20 x 96 = 1920 answers
+    n = len(df)
+    rate = df["correct"].mean()
+    assert abs(rate - 0.25) < 4 * math.sqrt(0.25 * 0.75 / n)
+    counts = df["answer"].value_counts()
+    assert set(counts.index) == {"triangle", "circle", "square", "rectangle"}
+    assert stats.chisquare(counts.to_numpy()).pvalue > 0.001
+
+
+def test_the_same_seed_gives_the_same_answers_and_another_seed_others():
+    setup = Setup.load(GRID)
+    a = simulate_participant(setup, 7, "P1")
+    b = simulate_participant(Setup.load(GRID), 7, "P1")
+    c = simulate_participant(setup, 8, "P1")
+    assert [r["answer"] for r in a] == [r["answer"] for r in b]
+    assert [r["answer"] for r in a] != [r["answer"] for r in c]
+
+
+def test_participants_differ_and_the_population_is_reproducible():
+    m = Setup.load(GRID).model
+    ps = [m.participant(0, f"P{i}") for i in range(40)]
+    assert len({p.two_point_threshold_mm for p in ps}) > 1
+    assert len({p.efficiency for p in ps}) == 40
+    assert ps[3] == m.participant(0, "P3")
+    typical = m.participant(0, "P1", typical=True)
+    params = load_params()
+    assert typical.two_point_threshold_mm == params.two_point_threshold_mm["lower_back"]
+    assert typical.lapse == pytest.approx(params.lapse)
+
+
+@pytest.mark.parametrize("name", STUDIES)
+def test_a_session_with_the_model_observer_logs_what_the_simulator_predicts(tmp_path, name):
+    """The Responder in a real session (sim device, BIDS log) and the fast simulator answer
+    every trial and question alike."""
+    path = ROOT / "experiments" / f"{name}.yaml"
+    setup = Setup.load(path)
+    lx = load_experiment(path)
+    model = ObserverModel.for_experiment(lx)
+    conditions = compile_conditions(lx, model.profile)
+    res = run_session(lx, "m1", 1, SimDevice(model.profile),
+                      ModelObserver(model, "m1", 1, seed=5), tmp_path, conditions=conditions,
+                      max_trials=40)
+    with open(res.paths.beh_tsv, encoding="utf-8") as f:
+        logged = [(int(r["trial"]), r["question"], r["answer"])
+                  for r in csv.DictReader(f, delimiter="\t") if r["practice"] == "0"]
+    predicted = [(r["trial"], r["question"], r["answer"])
+                 for r in simulate_participant(setup, 5, "m1")]
+    assert logged and logged == predicted[:len(logged)]
+
+
+def test_every_study_declares_how_the_model_answers():
+    for name in STUDIES:
+        lx = load_experiment(ROOT / "experiments" / f"{name}.yaml")
+        ObserverModel.for_experiment(lx)       # raises if an answer has no template
+
+
+def test_an_answer_without_a_template_is_a_clear_error(tmp_path):
+    from vtexp.errors import InputError
+    text = (ROOT / "experiments" / "six_mode_ball.yaml").read_text(encoding="utf-8")
+    head, _, _ = text.partition("\nobserver:")
+    p = tmp_path / "six.yaml"
+    p.write_text(head + "\n", encoding="utf-8")
+    with pytest.raises(InputError) as e:
+        ObserverModel.for_experiment(load_experiment(p))
+    assert "plane circular" in str(e.value) and "observer.templates" in str(e.value)
+
+
+PAIRED = """\
+name: paired
+title: Two durations of the same shapes (a paired design for the power check)
+device: vest_6x8
+stimuli:
+  circle: {generator: shape, params: {shape: circle}}
+  square: {generator: shape, params: {shape: square}}
+encoding: {pipeline: edge-trace}
+coding:
+  protocol: sequential-trace
+  params: {soa_ms: 200, loops: 1, level: 1, vertex_level: 2}
+factors:
+  shape: {sets: stimulus, levels: [circle, square]}
+  duration:
+    sets: coding
+    levels:
+      short: {duration_ms: 60}
+      long: {duration_ms: 200}
+design: {repetitions: 6, order: random}
+question:
+  kind: choice
+  prompt: Which shape?
+  options: [circle, square]
+  correct: "{shape}"
+analysis:
+  anova:
+    - {dv: rate, within: [duration]}
+"""
+
+
+def test_simulated_power_matches_the_paired_t_test_power(tmp_path):
+    """For a one-factor, two-level design the rm-ANOVA is the paired t test, whose power is
+    analytic (noncentral t) given the effect size d_z. d_z is measured on a large simulated
+    sample; the simulator's power at N = 8 must agree with the formula within its interval."""
+    p = tmp_path / "paired.yaml"
+    p.write_text(PAIRED, encoding="utf-8")
+    setup = Setup.load(p)
+    pilot = simulate_studies(setup, 11, [99999], 600)
+    per = pilot.groupby(["participant", "duration"], observed=True)["correct"].mean().unstack()
+    diff = (per["long"] - per["short"]).to_numpy()
+    dz = diff.mean() / diff.std(ddof=1)
+    n, alpha = 8, 0.05
+    t_crit = stats.t.ppf(1 - alpha / 2, n - 1)
+    nc = dz * math.sqrt(n)
+    analytic = (1 - stats.nct.cdf(t_crit, n - 1, nc)) + stats.nct.cdf(-t_crit, n - 1, nc)
+    res = run_power(p, n, 600, alpha=alpha, seed=11, workers=2)
+    row = res.table.iloc[0]
+    assert 0.15 < analytic < 0.95, analytic          # the check must have room either way
+    se = math.sqrt(analytic * (1 - analytic) / 600)
+    assert abs(row["power"] - analytic) < 3 * se + 0.03, (row["power"], analytic, dz)
+    assert row["ci_low"] <= row["power"] <= row["ci_high"]
