@@ -112,6 +112,8 @@ class Participant:
             return []
         if not self.steps or r.screen == "ready" and self.steps[0][0] != "ready":
             return []
+        if keyList is not None and (self.steps[0][1] != "key" or self.steps[0][2] not in keyList):
+            return []               # a poll for some keys only (the abort key, by the device)
         screen, action, *arg = self.steps[0]
         assert screen == r.screen, f"expected the {screen} screen, the window shows {r.screen}"
         self.steps.pop(0)
@@ -217,6 +219,148 @@ def test_escape_aborts_at_once_and_keeps_the_completed_trials(tmp_path, monkeypa
     assert meta["status"] == "aborted" and "escape" in meta["reason"]
     assert list(beh["answer"]) == ["square"]
     assert r.win is None                     # the window is gone with the session
+
+
+class XKeyboard:
+    """Real key presses, sent to the X server through its XTEST extension (as a keyboard's).
+
+    PsychoPy's own ``event.getKeys`` reads them, so this drives the real input path.
+    """
+
+    def __init__(self, display_name: str):
+        pytest.importorskip("Xlib", reason="python-xlib (installed with PsychoPy on Linux)")
+        from Xlib import XK, display
+        self.XK = XK
+        self.d = display.Display(display_name)
+        assert self.d.has_extension("XTEST"), "the X server has no XTEST extension"
+
+    def focus(self, win) -> None:
+        from Xlib import X
+        w = self.d.create_resource_object("window", win.winHandle._window)
+        self.d.set_input_focus(w, X.RevertToParent, X.CurrentTime)
+        self.d.sync()
+
+    def press(self, keysym: str) -> float:
+        """Press and release a key; return when it was pressed (``time.perf_counter``)."""
+        from Xlib import X
+        from Xlib.ext import xtest
+        code = self.d.keysym_to_keycode(self.XK.string_to_keysym(keysym))
+        t = time.perf_counter()
+        xtest.fake_input(self.d, X.KeyPress, code)
+        xtest.fake_input(self.d, X.KeyRelease, code)
+        self.d.sync()
+        return t
+
+    def close(self) -> None:
+        self.d.close()
+
+
+def wait_for(cond, timeout=20.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
+
+
+@pytest.mark.parametrize("device", ["sim:realtime", "emulator"])
+def test_escape_during_a_stimulus_stops_it_with_all_off_at_once(tmp_path, xvfb, device):
+    """A real Escape key press, 0.3 s into the second of two stimuli of about 1 s."""
+    import threading
+
+    from vtexp.devices import wire
+    lx = load_experiment(write_experiment(tmp_path, MINIMAL.replace(
+        "{duration_ms: 200, soa_ms: 200}", "{duration_ms: 60, soa_ms: 60}")))
+    profile = DeviceProfile.load(lx.experiment.device)
+    seen: dict[str, float] = {}
+
+    def trace(direction, item):             # the emulated device receiving ALL_OFF
+        if direction == "to_device" and isinstance(item, wire.AllOff) and "key" in seen:
+            seen.setdefault("all_off", time.perf_counter())
+
+    dev = open_device(device, profile, **({"emulator_options": {"trace": trace}}
+                                          if device == "emulator" else {}))
+    plays: list[tuple[float, float]] = []        # (perf_counter at start, duration_ms)
+    play = dev.play
+
+    def timed_play(schedule, **kw):
+        plays.append((time.perf_counter(), schedule.duration_ms))
+        return play(schedule, **kw)
+    dev.play = timed_play
+    if device.startswith("sim"):
+        all_off = dev._all_off
+
+        def timed_all_off():                    # the sim turning every actuator off
+            if "key" in seen:
+                seen.setdefault("all_off", time.perf_counter())
+            all_off()
+        dev._all_off = timed_all_off
+
+    r = responder()
+    kb = XKeyboard(xvfb)
+
+    def on_at_key() -> bool:
+        if device.startswith("sim"):
+            return bool(dev.state.max() > 0)
+        return not dev.emulator.all_outputs_off()
+
+    def participant():
+        try:
+            steps = [(lambda: r.win is not None and r.screen == "instructions", "space"),
+                     (lambda: r.screen == "choice", "1"),           # trial 1: square
+                     (lambda: len(plays) == 2, "Escape")]           # during trial 2's stimulus
+            for i, (ready, key) in enumerate(steps):
+                if not wait_for(ready):
+                    # The keys do not arrive: end the session rather than hang the test.
+                    from psychopy import event
+                    seen["stuck"] = i
+                    event._keyBuffer.append(("escape", 0, 0.0))
+                    return
+                if i == 0:
+                    kb.focus(r.win)
+                if key == "Escape":
+                    time.sleep(0.3)             # well inside the second stimulus
+                    seen["on"] = on_at_key()
+                    seen["key"] = kb.press(key)
+                else:
+                    time.sleep(0.1)             # after the screen has forgotten older input
+                    kb.press(key)
+        finally:
+            kb.close()
+
+    thread = threading.Thread(target=participant, daemon=True)
+    thread.start()
+    with dev:
+        with pytest.raises(SessionAborted) as aborted:
+            run_session(lx, "01", 1, dev, r, tmp_path / "data")
+        ended = time.perf_counter()
+        off = (float(dev.state.max()) == 0.0 if device.startswith("sim")
+               else dev.emulator.all_outputs_off())
+        by_all_off = device.startswith("sim") or any(
+            a.cause == "all_off" for a in dev.emulator.actuations())
+    thread.join(5)
+    assert "stuck" not in seen, f"key press {seen.get('stuck')} never reached the window"
+    assert "escape key was pressed" in str(aborted.value) and \
+        "during the stimulus" in str(aborted.value)
+    assert len(plays) == 2 and seen["on"], "Escape was not pressed while a stimulus played"
+    started, duration_ms = plays[1]
+    assert ended - started < duration_ms / 1000.0      # stopped, not played to its end
+    assert off and by_all_off
+    assert seen["key"] < seen["all_off"]
+    print(f"\n{device}: Escape -> ALL_OFF at the device "
+          f"{(seen['all_off'] - seen['key']) * 1000:.1f} ms")
+    if device.startswith("sim"):
+        kinds = [e.kind for e in dev.history]
+        assert kinds[kinds.index("stopped") + 1] == "all_off" and kinds.count("play") == 1
+    d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"
+    meta = json.loads((d / "session.json").read_text())
+    beh = pd.read_csv(next(d.glob("*_beh.tsv")), sep="\t", dtype=str)
+    events = pd.read_csv(next(d.glob("*_events.tsv")), sep="\t")
+    assert meta["status"] == "aborted" and "during the stimulus" in meta["reason"]
+    assert list(beh["trial"]) == ["1"] and list(beh["answer"]) == ["square"]
+    assert set(events["trial"]) == {1}          # the stopped stimulus left no trace
+    assert r.win is None                        # the window is gone with the session
 
 
 def test_the_experimenter_can_choose_the_abort_key(tmp_path, monkeypatch):

@@ -57,6 +57,12 @@ class ScreenResponder(Responder, Protocol):
     :class:`vtexp.errors.SessionAborted`
     from any of them, or from ``ask``, aborts the session: every actuator off,
     the session marked aborted, completed trials kept.
+
+    While a stimulus plays, the device polls ``stop_requested`` every few ms (the
+    ``should_stop`` of :meth:`vtexp.devices.base.Device.play`): a reason (text)
+    stops the stimulus with every actuator off at once, then the engine calls
+    ``stimulus_stopped`` (to close the screen) and the session aborts with that
+    reason.
     """
 
     def instructions(self, text: str) -> None: ...
@@ -68,6 +74,10 @@ class ScreenResponder(Responder, Protocol):
     def pause(self, text: str) -> None: ...
 
     def finish(self, text: str) -> None: ...
+
+    def stop_requested(self) -> str | None: ...
+
+    def stimulus_stopped(self, trial: Trial) -> None: ...
 
 
 def call_hook(responder: object, name: str, *args) -> None:

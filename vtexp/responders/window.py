@@ -22,9 +22,10 @@ time is the one PsychoPy stamped it with; a click's is the poll that saw it.
 
 The abort key (Escape unless chosen otherwise) on any screen but the end screen closes
 the window and raises :class:`~vtexp.errors.SessionAborted`: the session engine turns
-every actuator off and marks the session aborted, keeping the completed trials. The
-window is polled between stimuli; a key pressed while a stimulus plays takes effect as
-soon as it has ended.
+every actuator off and marks the session aborted, keeping the completed trials. While a
+stimulus plays, the device asks ``stop_requested`` every few ms whether the key was
+pressed; if so, it turns every actuator off at once, then the window closes
+(``stimulus_stopped``) and the session aborts.
 
 PsychoPy is the optional ``gui`` extra and is imported only when a window responder is
 made. Importing it is kept from changing this process: ``PSYCHOPYNOPACKAGES=1`` stops it
@@ -224,6 +225,24 @@ class WindowResponder:
 
     def stimulus_starts(self, trial: Trial) -> None:
         self._show_ready()
+
+    def stop_requested(self) -> str | None:
+        """Why to stop if the abort key was pressed, else None (the device polls this
+        every few ms while a stimulus plays).
+
+        Reads only the abort key, so other keys stay for the screen that comes next
+        (which forgets them, as it forgets anything pressed before it was shown).
+        """
+        if self.win is None:
+            return None
+        key = self.options.abort_key
+        if self._event.getKeys(keyList=[key]):
+            return f"the {key} key was pressed in the participant window during the stimulus"
+        return None
+
+    def stimulus_stopped(self, trial: Trial) -> None:
+        """The stimulus was stopped by the abort key (every actuator is off): close."""
+        self.close()
 
     def pause(self, text: str) -> None:
         self._wait_to_continue("break", text or "Take a break.",
