@@ -133,12 +133,34 @@ def identity(dev, profile) -> list[str]:
 
 
 def round_trip(dev, pings: int) -> str | None:
-    """Time ``pings`` heartbeats over the link; None for a device without one (sim)."""
+    """Time ``pings`` heartbeats over the link; None for a device without one (sim).
+
+    A heartbeat is timed once, without resending. One left unanswered within the
+    reply timeout (a busy computer, a noisy line) is counted, and the device is
+    then asked for its status the way a session asks, resent as often as the link
+    allows: only if that fails too does the check fail.
+    """
+    from ..errors import DeviceError
+    from .link import DeviceLost, DeviceRefused
+
     if not hasattr(dev, "ping") or pings <= 0:
         return None
-    rtts = [dev.ping() for _ in range(pings)]
-    return (f"round trip ({len(rtts)} heartbeats): p50 {_percentile(rtts, 0.5):.2f} ms, "
-            f"p95 {_percentile(rtts, 0.95):.2f} ms, max {max(rtts):.2f} ms")
+    rtts: list[float] = []
+    for _ in range(pings):
+        try:
+            rtts.append(dev.ping())
+        except (DeviceLost, DeviceRefused):
+            raise
+        except DeviceError:
+            dev.status()
+    line = f"round trip ({pings} heartbeats): "
+    if rtts:
+        line += (f"p50 {_percentile(rtts, 0.5):.2f} ms, p95 {_percentile(rtts, 0.95):.2f} ms, "
+                 f"max {max(rtts):.2f} ms")
+    if len(rtts) < pings:
+        line += ("; " if rtts else "") + (f"{pings - len(rtts)} not answered in time (the "
+                                          "device answered when asked again)")
+    return line
 
 
 def all_off(dev) -> str:
