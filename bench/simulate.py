@@ -27,13 +27,13 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vtexp.analysis.load import load_sessions  # noqa: E402
-from vtexp.compile import compile_conditions  # noqa: E402
-from vtexp.devices.sim import SimDevice  # noqa: E402
-from vtexp.experiment import load_experiment  # noqa: E402
-from vtexp.observer import ModelObserver, ObserverModel  # noqa: E402
-from vtexp.session import run_session  # noqa: E402
-from vtexp.simulate import run_power  # noqa: E402
+from vtexp.analysis.load import load_sessions
+from vtexp.compile import compile_conditions
+from vtexp.devices.sim import SimDevice
+from vtexp.experiment import load_experiment
+from vtexp.observer import ModelObserver, ObserverModel
+from vtexp.session import run_session
+from vtexp.simulate import run_power
 
 EXP = ROOT / "experiments" / "six_mode_ball.yaml"
 
@@ -60,7 +60,7 @@ def main() -> None:
     one_s = one.seconds * studies / max(1, studies // 4)
     per = sessions_per_participant()
     sess_s = per * studies * n
-    rows = [("vtexp, %d processes" % cores, fast.seconds, "measured"),
+    rows = [(f"vtexp, {cores} processes", fast.seconds, "measured"),
             ("one process", one_s, f"measured on {max(1, studies // 4)} studies, scaled"),
             ("real sessions + load", sess_s, f"{per * 1000:.0f} ms per participant, scaled")]
     print(f"\n{studies} studies x {n} participants of six_mode_ball "

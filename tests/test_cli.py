@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pandas as pd
 
@@ -58,18 +59,30 @@ def test_run_with_an_answer_file(cli, tmp_path, minimal_yaml):
     assert list(pd.read_csv(tsv, sep="\t")["answer"]) == ["square", "circle", "circle", "square"]
 
 
-def test_demo_runs_logs_and_reports(cli, tmp_path):
-    r = cli("demo", "--data", str(tmp_path / "demo"), "--participants", "2", cwd=tmp_path)
+def test_demo_runs_the_four_studies_with_model_participants(cli, tmp_path):
+    r = cli("demo", "--data", str(tmp_path / "demo"), "--participants", "2", cwd=tmp_path,
+            timeout=300)
     assert r.returncode == 0, r.stderr
     root = tmp_path / "demo"
-    sessions = sorted(root.glob("duration_interval_grid/sub-*/ses-1/session.json"))
-    assert len(sessions) == 2
-    assert all(json.loads(s.read_text())["status"] == "completed" for s in sessions)
+    for name in ("six_mode_ball", "duration_interval_grid", "whirlpool", "circle_vs_rectangle"):
+        sessions = sorted(root.glob(f"{name}/sub-*/ses-1/session.json"))
+        assert len(sessions) == 2, name
+        meta = [json.loads(s.read_text()) for s in sessions]
+        assert all(m["status"] == "completed" for m in meta)
+        assert all(m["responder"].startswith("model observer (seed 0") for m in meta)
+        # the short version that was run is the file the sessions record
+        assert all(Path(m["experiment_file"]["path"]) == root / "experiments" / f"{name}.yaml"
+                   for m in meta)
+        html = root / "report" / name / "report.html"
+        assert str(html) in r.stdout
+        if name != "whirlpool":                        # it declares no figure
+            assert "data:image/png;base64," in html.read_text()   # figures embedded
+        assert "<table" in html.read_text() and name in r.stdout
     assert (root / "report" / "report.md").is_file()
-    html = root / "report" / "duration_interval_grid" / "report.html"
-    assert "Report:" in r.stdout and str(html) in r.stdout
-    assert "data:image/png;base64," in html.read_text()       # figures embedded
-    assert "effect of timing: F(" in r.stdout
+    assert "effect of display: F(" in r.stdout and "effect of shape: F(" in r.stdout
+    assert "vtexp simulate" in r.stdout
+    # The same seed gives the same answers: a second demo replaces the first, identically.
+    first = (next(root.glob("whirlpool/sub-m01/ses-1/*_beh.tsv"))).read_text()
     # The study's reanalysis script reproduces the paper's Table 1 layout from the data.
     import subprocess
     import sys
@@ -81,13 +94,31 @@ def test_demo_runs_logs_and_reports(cli, tmp_path):
     table = pd.read_csv(tmp_path / "t1.csv", index_col=0)
     assert list(table.columns) == ["triangle", "circle", "square", "rectangle", "mean"]
     assert len(table) == 8 and table.to_numpy().min() >= 0 and table.to_numpy().max() <= 1
-    # A second demo replaces the first; a folder the demo did not make is left alone.
-    assert cli("demo", "--data", str(root), "--participants", "1").returncode == 0
-    assert len(list(root.glob("duration_interval_grid/sub-*"))) == 1
+    assert cli("demo", "--data", str(root), "--participants", "2",
+               timeout=300).returncode == 0
+    again = (next(root.glob("whirlpool/sub-m01/ses-1/*_beh.tsv"))).read_text()
+    drop_time = [ln.rsplit("\t", 1)[0] for ln in first.splitlines()]
+    assert drop_time == [ln.rsplit("\t", 1)[0] for ln in again.splitlines()]
     other = tmp_path / "precious"
     other.mkdir()
     r = cli("demo", "--data", str(other))
     assert r.returncode == 2 and "was not made by 'vtexp demo'" in r.stderr
+
+
+def test_simulate_reports_power_and_predictions(cli, tmp_path):
+    out = tmp_path / "power.json"
+    r = cli("simulate", "experiments/circle_vs_rectangle.yaml", "--participants", "4",
+            "--studies", "40", "--json", str(out), "--quiet", timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "Power at N = 4 (40 studies" in r.stdout
+    assert "shape (answer)" in r.stdout and "Predicted mean per condition" in r.stdout
+    doc = json.loads(out.read_text())
+    assert doc["participants"] == 4 and doc["studies"] == 40
+    effects = {p["effect"]: p for p in doc["power"]}
+    shape = effects["shape (answer)"]
+    assert 0 <= shape["ci_low"] <= shape["power"] <= shape["ci_high"] <= 1
+    bad = cli("simulate", "experiments/circle_vs_rectangle.yaml", "--alpha", "2")
+    assert bad.returncode == 2 and "alpha" in bad.stderr and "Traceback" not in bad.stderr
 
 
 def test_version(cli):

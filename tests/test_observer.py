@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import ROOT
 from scipy import stats
 
 from vtexp.compile import compile_conditions
@@ -17,8 +18,6 @@ from vtexp.observer.params import load_params
 from vtexp.observer.percept import Skin, features, noise_density
 from vtexp.session import run_session
 from vtexp.simulate import Setup, run_power, simulate_participant, simulate_studies
-
-from conftest import ROOT
 
 GRID = ROOT / "experiments" / "duration_interval_grid.yaml"
 STUDIES = ["six_mode_ball", "duration_interval_grid", "whirlpool", "circle_vs_rectangle",

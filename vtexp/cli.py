@@ -19,7 +19,6 @@ from . import __version__
 from .errors import InputError, VtexpError
 
 DEMO_MARKER = ".vtexp-demo"
-DEMO_EXPERIMENT = "duration_interval_grid"
 
 
 def _out(msg: str = "") -> None:
@@ -418,57 +417,109 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+#: The four studies of the papers, with the repetitions of the demo's short version.
+DEMO_STUDIES = [("six_mode_ball", 3), ("duration_interval_grid", 1), ("whirlpool", 2),
+                ("circle_vs_rectangle", 3)]
+
+
+def _short_version(src: Path, dest: Path, repetitions: int) -> Path:
+    """A copy of an experiment file with fewer repetitions, saying so at its top."""
+    import re
+
+    text = src.read_text(encoding="utf-8")
+    short, n = re.subn(r"(?m)^(  repetitions:\s*)\d+", rf"\g<1>{repetitions}", text, count=1)
+    if n != 1:
+        raise InputError("cannot find design.repetitions to shorten", path=str(src))
+    dest.write_text(f"# Short version of {src} written by 'vtexp demo': design.repetitions "
+                    f"set to {repetitions}.\n" + short, encoding="utf-8")
+    return dest
+
+
+def _headline(analysis) -> str:
+    """The first effect the experiment's analysis tests, as one sentence."""
+    for x in analysis.sentences:
+        if ": effect of " in x or x.startswith("Friedman"):
+            return x
+    return analysis.sentences[0] if analysis.sentences else "(no test declared)"
+
+
 def cmd_demo(args) -> int:
     from .analysis import load_sessions
-    from .analysis.report import markdown_table, write_reports
+    from .analysis.report import write_reports
     from .compile import compile_conditions
+    from .devices.sim import SimDevice
     from .experiment import load_experiment
+    from .observer import ModelObserver, ObserverModel
     from .resources import experiments_dir
+    from .session import run_session
 
+    t0 = time.perf_counter()
     root = Path(args.data)
     if root.exists():
         if not (root / DEMO_MARKER).exists():
             raise InputError(f"{root} exists and was not made by 'vtexp demo'; it is left "
                              "alone. Pass --data DIR to choose another folder.")
         shutil.rmtree(root)
-    root.mkdir(parents=True)
+    (root / "experiments").mkdir(parents=True)
     (root / DEMO_MARKER).write_text("made by 'vtexp demo'; the next demo replaces it\n")
-    path = experiments_dir() / f"{DEMO_EXPERIMENT}.yaml"
-    lx = load_experiment(path)
-    conds = compile_conditions(lx)
-    exp = lx.experiment
-    _out(f"vtexp demo — {exp.title}")
-    _out(f"  experiment: {path}  ({exp.reference})")
-    _out(f"  device: sim backend with profile {exp.device}; {len(conds)} conditions x "
-         f"{exp.design.repetitions} repetitions per participant")
-    _out("  answers: scripted responders, correct with the probability shown "
-         "(a stand-in for people; no perception is modelled)")
-    accuracies = [0.9, 0.8, 0.7, 0.6][: args.participants] if args.participants <= 4 else \
-        [0.9 - 0.3 * i / (args.participants - 1) for i in range(args.participants)]
-    for i, p_correct in enumerate(accuracies, start=1):
-        pid = f"{i:02d}"
-        res = _run_one(lx, pid, 1, "sim", f"scripted:accuracy={p_correct}", root, True, conds)
-        stim_s = sum(r.stimulus_duration_ms or 0 for r in res.records) / 1000
-        _out(f"  participant {pid}: p(correct)={p_correct:.2f}, {len(res.records)} trials, "
-             f"{sum(1 for r in res.records if r.correct)} correct, {stim_s:.0f} s of "
-             f"stimulation played on the simulated vest")
-    trials, sessions = load_sessions([root / exp.name])
-    rep, full = write_reports(trials, sessions, root / "report")
-    _out("\nRecognition rate by duration/SOA (mean over participants ± SE):")
-    _out(markdown_table(rep.tables[f"{exp.name}/by_timing"].drop(columns="experiment")))
-    sentences = full[exp.name]["analysis"].sentences
-    main = [x for x in sentences if not x.startswith("Simple effect")]
-    if main:
-        _out("\nThe analyses the experiment declares (seed 001 §4.1), main results:")
-        for line in main:
-            _out(f"  {line}")
-        if len(main) < len(sentences):
-            _out(f"  ... and {len(sentences) - len(main)} simple effects in the report.")
-    _out(f"\nData:   {root / exp.name}/sub-*/ses-1/  (trial log .tsv, sidecar .json, "
-         "device events .tsv, session.json)")
-    _out(f"Report: {full[exp.name]['html']}  (+ report.md and CSV tables beside it)")
-    _out(f"Next:   vtexp plan {path} --participant 01   |   vtexp analyze {root / exp.name}")
+    _out("vtexp demo: the four studies of the papers, each run by "
+         f"{args.participants} model participants on the simulated device\n")
+    _out("A model participant feels what the device reports it played: blurred by the skin's "
+         "two-point\nthreshold, limited to 7-8 intensity levels, integrated over ~40 ms; it "
+         "answers by comparing\nthat percept with every answer option rendered the same way "
+         "(protocols/observers/default.yaml).\n")
+    summary = []
+    for name, reps in DEMO_STUDIES:
+        src = experiments_dir() / f"{name}.yaml"
+        path = _short_version(src, root / "experiments" / f"{name}.yaml", reps)
+        lx = load_experiment(path)
+        exp = lx.experiment
+        model = ObserverModel.for_experiment(lx)
+        conds = compile_conditions(lx, model.profile)
+        n_trials = 0
+        for i in range(1, args.participants + 1):
+            pid = f"m{i:02d}"
+            res = run_session(lx, pid, 1, SimDevice(model.profile),
+                              ModelObserver(model, pid, 1, seed=args.seed), root,
+                              conditions=conds, command=sys.argv)
+            n_trials = len({r.trial for r in res.records})
+        _out(f"  {exp.title}\n    {exp.reference}; {exp.device}; {len(conds)} conditions x "
+             f"{reps} repetition{'s' if reps > 1 else ''} = {n_trials} trials per participant: logged")
+        summary.append((name, exp, n_trials))
+    names = [n for n, _ in DEMO_STUDIES]
+    trials, sessions = load_sessions([root / n for n in names])
+    _, full = write_reports(trials, sessions, root / "report")
+    _out("\nWhat the model participants did, and the first test each study declares:")
+    for name, exp, n_trials in summary:
+        a = full[name]["analysis"]
+        sub = trials[trials["experiment"] == name]
+        if sub["correct"].notna().any():
+            what = f"recognition rate {sub['correct'].astype(float).mean():.0%}"
+        else:
+            parts = []
+            for q, g in sub.groupby("question"):
+                parts.append(f"mean {q} {pd_mean(g['answer']):.2f}")
+            what = ", ".join(parts)
+        _out(f"  {name:<24} {args.participants} x {n_trials} trials, {what}")
+        _out(f"  {'':<24} {_headline(a)}")
+    _out(f"\nTook {time.perf_counter() - t0:.0f} s. Everything is in {root}/:")
+    _out(f"  {root}/<study>/sub-*/ses-1/   the logs a real session writes (trials .tsv, "
+         "sidecar .json, device events .tsv, session.json)")
+    _out(f"  {root}/experiments/           the short versions that were run")
+    _out(f"  {root}/report/                the report: {root}/report/report.md, and per "
+         "study an HTML page with figures and tables:")
+    for name, _, _ in summary:
+        _out(f"      {full[name]['html']}")
+    _out("\nNext: how many participants would a study need?")
+    _out("  vtexp simulate experiments/six_mode_ball.yaml --participants 15 --studies 1000 "
+         "--target-power 0.8")
+    _out("Or run a person: vtexp run experiments/duration_interval_grid.yaml --responder window")
     return 0
+
+
+def pd_mean(col) -> float:
+    import pandas as pd
+    return float(pd.to_numeric(col, errors="coerce").mean())
 
 
 # --------------------------------------------------------------------------- parser
@@ -545,11 +596,17 @@ def build_parser() -> argparse.ArgumentParser:
     from .devices.cli import register as register_device
     register_device(sub)
 
-    s = sub.add_parser("demo", help="run, log and analyse a short study on the simulator")
+    s = sub.add_parser("demo", help="the four studies run by model participants, analysed")
     s.add_argument("--data", default="data/demo", help="demo folder (default: ./data/demo)")
-    s.add_argument("--participants", type=int, default=4, choices=range(1, 21),
-                   metavar="N", help="simulated participants (1-20, default 4)")
+    s.add_argument("--participants", type=int, default=6, choices=range(2, 21),
+                   metavar="N", help="model participants per study (2-20, default 6)")
+    s.add_argument("--seed", type=int, default=0, help="model participants' seed (default 0)")
     s.set_defaults(func=cmd_demo)
+
+    from .simulate_cli import add_parser as add_simulate
+    from .simulate_cli import cmd_simulate
+    add_simulate(sub)
+    sub.choices["simulate"].set_defaults(func=cmd_simulate)
     return p
 
 

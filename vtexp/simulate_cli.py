@@ -43,8 +43,14 @@ def _progress(total: int, quiet: bool, label: str):
     if quiet:
         return (lambda k: None), (lambda: None)
     from rich.console import Console
-    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                               TimeElapsedColumn, TimeRemainingColumn)
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
     bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                    TimeElapsedColumn(), TimeRemainingColumn(),
@@ -116,8 +122,9 @@ def cmd_simulate(args) -> int:
                               params_file=args.observer, on_step=step)
         print(f"\nSmallest N for power >= {args.target_power}:")
         for _, r in table.iterrows():
-            n = "not reached by N = %d" % args.max_participants if r["smallest_n"] is None \
-                or r["smallest_n"] != r["smallest_n"] else f"N = {int(r['smallest_n'])}"
+            found = r["smallest_n"] is not None and r["smallest_n"] == r["smallest_n"]
+            n = f"N = {int(r['smallest_n'])}" if found else \
+                f"not reached by N = {args.max_participants}"
             print(f"  {r['effect']:<58} {n}  (power {r['power']:.3f})")
         doc["target_power"] = args.target_power
         doc["smallest_n"] = table.astype(object).where(table.notna(), None) \

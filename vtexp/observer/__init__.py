@@ -15,7 +15,8 @@ _EXPORTS = {"ObserverModel": ".model", "ModelObserver": ".responder",
             "ObserverParams": ".params", "Participant": ".params",
             "draw_participant": ".params", "load_params": ".params", "ObserverSpec": ".spec"}
 
-__all__ = sorted(_EXPORTS)
+__all__ = ["ModelObserver", "ObserverModel", "ObserverParams", "ObserverSpec", "Participant",
+           "draw_participant", "load_params"]
 
 
 def __getattr__(name: str):

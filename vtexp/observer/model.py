@@ -39,7 +39,13 @@ from ..compile import Condition, stimulus_image
 from ..errors import InputError
 from ..experiment import LoadedExperiment
 from ..model import DeviceProfile, PlayReport
-from .params import ObserverParams, Participant, draw_participant, load_params, uniform_stream
+from .params import (
+    ObserverParams,
+    Participant,
+    draw_participant,
+    load_params,
+    uniform_stream,
+)
 from .percept import Skin, features, noise_density, winding_turns
 from .spec import ObserverSpec, TemplateSpec
 

@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
-from scipy.special import ndtr, ndtri
 from pydantic import Field, ValidationError
+from scipy.special import ndtr, ndtri
 
 from ..errors import InputError
 from ..model import Model
@@ -152,7 +152,7 @@ def draw_participant(params: ObserverParams, site: str, seed: int, participant: 
 
     tpt = lognormal(params.two_point_threshold_mm[site], pop.two_point_threshold_cv, zt)
     tau = lognormal(params.integration_ms, pop.integration_cv, zi)
-    levels = max(2, int(round(params.intensity_levels + pop.intensity_levels_sd * z[2])))
+    levels = max(2, round(params.intensity_levels + pop.intensity_levels_sd * float(z[2])))
     eff = min(1.0, lognormal(params.efficiency, pop.efficiency_cv, z[3]))
     dn = lognormal(params.decision_noise, pop.decision_noise_cv, z[4]) \
         if params.decision_noise > 0 else 0.0

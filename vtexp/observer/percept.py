@@ -199,7 +199,7 @@ def noise_density(skin: Skin) -> float:
     one TPT apart differ by d' = 1 (the definition of the two-point threshold)."""
     s, tpt = skin.sigma_mm, skin.two_point_threshold_mm
     spatial = 2 * np.pi * s * s * (1 - np.exp(-tpt * tpt / (4 * s * s))) / tpt ** 2
-    n = max(1, int(round(skin.integration_ms / skin.dt_ms)))
+    n = max(1, round(skin.integration_ms / skin.dt_ms))
     box = np.zeros(n + int(np.ceil(6 * skin.integration_ms / skin.dt_ms)))
     box[:n] = 1.0
     u = leaky(box, skin.dt_ms, skin.integration_ms)
