@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -498,3 +499,27 @@ def test_several_questions_give_one_row_each_and_resume_by_whole_trials(tmp_path
     assert list(rows["question"][:4]) == ["sensation", "turns", "sensation", "turns"]
     side = json.loads(paths.beh_json.read_text())
     assert set(side["question"]["Levels"]) == {"sensation", "turns"}
+
+
+def test_resume_refuses_a_coding_file_changed_since_the_session_began(tmp_path, minimal_yaml):
+    """A coding taken by reference is part of what the session played: if its file changed,
+    the trials still to come would not be the ones the first trials belong with."""
+    coding = tmp_path / "codings" / "mine.yaml"
+    coding.parent.mkdir()
+    coding.write_text("name: mine\ndescription: test\nreference: a test\n"
+                      "protocol: sequential-trace\nparams: {duration_ms: 200, soa_ms: 100}\n",
+                      encoding="utf-8")
+    text = re.sub(r"(?m)^coding:\n(  .*\n)+", "coding:\n  ref: codings/mine.yaml\n",
+                  minimal_yaml)
+    assert "ref: codings/mine.yaml" in text
+    lx = load_experiment(write_experiment(tmp_path, text))
+    with pytest.raises(RuntimeError):
+        run(lx, tmp_path / "m", responder=ScriptedResponder(
+            lambda q, t: (_ for _ in ()).throw(RuntimeError("stop")) if t.number == 2
+            else t.levels["shape"]))
+    coding.write_text(coding.read_text().replace("soa_ms: 100", "soa_ms: 300"))
+    changed = load_experiment(tmp_path / "exp.yaml")
+    with pytest.raises(SessionError, match="coding file .*mine.yaml.* SHA-256 differs"):
+        with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
+            run_session(changed, "01", 1, dev, make_responder("scripted:correct", "01", 1),
+                        tmp_path / "m", resume=True)

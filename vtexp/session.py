@@ -346,6 +346,12 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed
         raise SessionError(f"the experiment file {lx.path} is not the one session {paths.dir} "
                            "started with (its SHA-256 differs); resume with that file, or "
                            "start a new session")
+    was = ((record.get("experiment_loaded") or {}).get("coding") or {}).get("source") or {}
+    now = lx.experiment.coding.model_dump(mode="json").get("source") or {}
+    if was.get("sha256") != now.get("sha256"):
+        raise SessionError(f"the coding file {now.get('file') or was.get('file')} is not the one "
+                           f"session {paths.dir} started with (its SHA-256 differs); restore "
+                           "it, or start a new session")
     if record.get("seed") != seed or record.get("trial_order") != \
             [t.condition.index for t in trials]:
         raise SessionError(f"the trial list of {paths.dir} cannot be rebuilt (seed or order "
