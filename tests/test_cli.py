@@ -401,3 +401,14 @@ def _plays(actuations) -> dict[int, list[tuple[int, int]]]:
         if a.cause == "play":
             plays.setdefault(a.play_id, []).append((a.index, a.setting.level))
     return plays
+
+
+def test_run_with_a_model_participant(cli, tmp_path):
+    args = ["run", "experiments/circle_vs_rectangle.yaml", "-p", "m1", "--responder",
+            "model:seed=4", "--data", str(tmp_path), "--quiet"]
+    r = cli(*args)
+    assert r.returncode == 0, r.stderr
+    meta = json.loads(next(tmp_path.rglob("session.json")).read_text())
+    assert meta["status"] == "completed" and meta["responder"].startswith("model observer (seed 4")
+    bad = cli(*args[:5], "model:seed=x", "--data", str(tmp_path / "b"))
+    assert bad.returncode == 2 and "unknown model option" in bad.stderr

@@ -145,7 +145,7 @@ def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet,
     check_participant(participant)
     check_session(session)
     profile = DeviceProfile.load(lx.experiment.device)
-    responder = make_responder(responder_spec, participant, session)
+    responder = make_responder(responder_spec, participant, session, lx)
     device = open_device(device_spec, profile)
     with device:
         if check_device:
@@ -558,6 +558,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--responder", required=True,
                    help="who answers: console (in this terminal) | scripted:correct | "
                         "scripted:random | scripted:accuracy=P | scripted:answers=FILE | "
+                        "model[:seed=N,typical] (a model participant, see 'vtexp simulate') | "
                         "window (the "
                         "participant's PsychoPy window, fullscreen on screen 0; options "
                         "after a colon, comma-separated: windowed, fullscreen, screen=N, "
