@@ -412,3 +412,28 @@ def test_run_with_a_model_participant(cli, tmp_path):
     assert meta["status"] == "completed" and meta["responder"].startswith("model observer (seed 4")
     bad = cli(*args[:5], "model:seed=x", "--data", str(tmp_path / "b"))
     assert bad.returncode == 2 and "unknown model option" in bad.stderr
+
+
+def test_a_terminal_that_goes_away_at_a_prompt_is_one_message(tmp_path, minimal_yaml):
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    from conftest import ROOT, write_experiment
+    f = write_experiment(tmp_path, minimal_yaml)
+    master, slave = pty.openpty()
+    p = subprocess.Popen([sys.executable, "-m", "vtexp", "run", str(f), "--responder",
+                          "scripted:correct", "--data", str(tmp_path / "d")], stdin=slave,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    os.close(slave)
+    seen = b""
+    while b"Participant id: " not in seen:
+        chunk = os.read(p.stdout.fileno(), 100)
+        assert chunk, p.stderr.read()
+        seen += chunk
+    os.close(master)                        # the terminal window is closed
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 2 and "Traceback" not in err
+    assert err == "vtexp: error: --participant: missing: no participant id was given\n"

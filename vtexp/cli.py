@@ -191,7 +191,7 @@ def _check_device(device, profile, test_pulse: bool) -> None:
 def _yes(prompt: str) -> bool:
     try:
         return input(prompt).strip().lower() in ("y", "yes")
-    except EOFError:
+    except (EOFError, OSError):     # input ended, or the terminal went away
         return False
 
 
@@ -272,7 +272,7 @@ def _ask_participant() -> str:
     while True:
         try:
             answer = input("Participant id: ").strip()
-        except EOFError:
+        except (EOFError, OSError):     # input ended, or the terminal went away
             raise InputError("missing: no participant id was given",
                              key="--participant") from None
         try:
@@ -309,7 +309,7 @@ def _ask_session(participant: str, existing: list[dict], args, lx) -> int:
     while True:
         try:
             answer = input(f"{prompt} [{default}]: ").strip()
-        except EOFError:
+        except (EOFError, OSError):     # input ended, or the terminal went away
             raise InputError("missing: no session number was given", key="--session") from None
         try:
             session = check_session(int(answer) if answer else default)
@@ -339,7 +339,7 @@ def _ask_experimenter(error, trial) -> str:
         try:
             answer = input("[r]etry the trial (reconnect first), [s]kip it, or [a]bort the "
                            "session? ").strip().lower()
-        except EOFError:
+        except (EOFError, OSError):     # input ended, or the terminal went away
             return "abort"
         for choice in ("retry", "skip", "abort"):
             if answer in (choice, choice[0]):
