@@ -80,15 +80,23 @@ def simulate_participant(setup: Setup, seed: int, participant: str, session: int
     U = model.uniforms(seed, participant, session, len(trials))
     questions = exp.asked()
     offsets = np.cumsum([0] + [question_columns(q) for q in questions])
-    rows = []
-    for t in trials:
-        if t.practice:
-            continue
-        c = t.condition
+    main = [t for t in trials if not t.practice]
+    by_condition: dict[int, list] = {}
+    for t in main:
+        by_condition.setdefault(t.condition.index, []).append(t)
+    answer: dict[tuple[int, int], str] = {}
+    for ci, ts in by_condition.items():
+        c = ts[0].condition
+        idx = np.array([t.number - 1 for t in ts])
         for qi, q in enumerate(questions):
-            u = U[t.number - 1, offsets[qi]:offsets[qi + 1]]
-            ans = model.answer(q, c, setup.played[c.index], who, u,
-                               played_key=("condition", c.index))
+            got = model.answers(q, c, setup.played[ci], who,
+                                U[idx, offsets[qi]:offsets[qi + 1]], played_key=("condition", ci))
+            for t, a in zip(ts, got, strict=True):
+                answer[(t.number, qi)] = a
+    rows = []
+    for t in main:
+        for qi, q in enumerate(questions):
+            ans = answer[(t.number, qi)]
             right = correct_answer(q, t) if q.kind == "choice" else None
             rows.append({"participant": participant, **t.levels, "stimulus": t.stimulus,
                          "question": q.name, "trial": t.number, "answer": ans,

@@ -233,35 +233,53 @@ class ObserverModel:
     def answer(self, question, condition: Condition, played: PlayReport, who: Participant,
                u: np.ndarray, played_key: tuple | None = None) -> str:
         """The answer of participant ``who`` given the trial's uniforms ``u`` for this question."""
+        return self.answers(question, condition, played, who, u[None, :], played_key)[0]
+
+    def answers(self, question, condition: Condition, played: PlayReport, who: Participant,
+                U: np.ndarray, played_key: tuple | None = None) -> list[str]:
+        """The answers to several trials of one condition, one row of uniforms each.
+
+        Row by row the arithmetic is the same whatever the number of rows (element-wise
+        operations and reductions along rows, no matrix products), so a trial's answer
+        does not depend on how many trials are decided together.
+        """
         g = self.geometry(question, condition, played, who, played_key)
-        lapsed = u[0] < who.lapse
+        lapsed = U[:, 0] < who.lapse
         if question.kind == "number":
             lo, hi = question.minimum, question.maximum
-            if lapsed:
-                return str(lo + min(int(u[1] * (hi - lo + 1)), hi - lo))
-            n = round(g.turns + self.params.turns_sd * float(_normal(u[2])))
-            return str(int(min(max(n, lo), hi)))
+            pick = lo + np.minimum((U[:, 1] * (hi - lo + 1)).astype(int), hi - lo)
+            n = np.clip(np.round(g.turns + self.params.turns_sd * _normal(U[:, 2])), lo, hi)
+            return [str(int(x)) for x in np.where(lapsed, pick, n)]
         opts = question.options if question.kind == "choice" else [str(v) for v in question.scale]
-        if lapsed:
-            return opts[min(int(u[1] * len(opts)), len(opts) - 1)]
+        pick = np.minimum((U[:, 1] * len(opts)).astype(int), len(opts) - 1)
         s = g.scale * np.sqrt(who.efficiency)
         k = g.gram.shape[0]
-        zz = _normal(u[FIXED_COLUMNS:FIXED_COLUMNS + 2 * k])
-        E = -s * s * g.half - s * (g.root @ zz[:k]) + who.decision_noise * zz[k:]      # (M1)
+        zz = _normal(U[:, FIXED_COLUMNS:FIXED_COLUMNS + 2 * k])
+        noise = (zz[:, None, :k] * g.root[None, :, :]).sum(axis=2)    # xi = root @ z per row
+        E = -s * s * g.half[None, :] - s * noise + who.decision_noise * zz[:, k:]   # (M1)
         if question.kind == "rating":
             spread = s * g.spread
-            v = (E[1] - E[0]) / spread if spread > 1e-12 else (E[1] - E[0])
-            v += who.rating_bias                                                       # (M2)
+            v = E[:, 1] - E[:, 0]
+            if spread > 1e-12:
+                v = v / spread
+            v = v + who.rating_bias                                                # (M2)
             n = len(opts)
             cuts = (np.arange(n - 1) - (n - 2) / 2) * self.params.rating_step
-            return opts[int(np.searchsorted(cuts, v))]
-        names = [o for o in question.options if o not in self.spec.abstain]
-        order = np.argsort(-E, kind="stable")
-        if self.spec.abstain and (k < 2 or E[order[0]] - E[order[1]]
-                                  < self.params.abstain_criterion):
-            abstain = [o for o in question.options if o in self.spec.abstain]
-            return abstain[0]
-        return names[int(order[0])]
+            idx = np.searchsorted(cuts, v)
+        else:
+            names = [o for o in question.options if o not in self.spec.abstain]
+            order = np.argsort(-E, axis=1, kind="stable")
+            idx = np.array([question.options.index(names[i]) for i in order[:, 0]])
+            if self.spec.abstain:
+                abstain = question.options.index(
+                    next(o for o in question.options if o in self.spec.abstain))
+                if k < 2:
+                    idx[:] = abstain
+                else:
+                    rows = np.arange(len(E))
+                    lead = E[rows, order[:, 0]] - E[rows, order[:, 1]]
+                    idx = np.where(lead < self.params.abstain_criterion, abstain, idx)
+        return [opts[i] for i in np.where(lapsed, pick, idx)]
 
 
 def _report_key(r: PlayReport) -> tuple:

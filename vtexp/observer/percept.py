@@ -105,18 +105,21 @@ def activity(reports: list[PlayReport], profile: DeviceProfile, skin: Skin,
     n_bins = int(np.ceil((end + 3 * tau) / dt)) + 1
     index = {int(a): i for i, a in enumerate(support)}
     x = np.zeros((len(reports), len(support), n_bins))
-    edges = np.arange(n_bins + 1) * dt
+    cols = profile.geometry.cols
     for k, r in enumerate(reports):
         a = quantize(pulse_intensities(r, profile), skin.intensity_levels)
-        for p, amp in zip(r.pulses, a, strict=True):
+        for p, amp in zip(r.pulses, a.tolist(), strict=True):
             if amp <= 0:
                 continue
-            i = index[p.row * profile.geometry.cols + p.col]
-            t0, t1 = p.onset_ms, p.onset_ms + p.duration_ms
+            row = x[k, index[p.row * cols + p.col]]
+            t0, t1 = p.onset_ms, p.onset_ms + p.duration_ms     # the pulse covers [t0, t1)
             b0, b1 = int(t0 // dt), min(int(np.ceil(t1 / dt)), n_bins)
-            lo = np.maximum(edges[b0:b1], t0)
-            hi = np.minimum(edges[b0 + 1:b1 + 1], t1)
-            x[k, i, b0:b1] += amp * np.clip(hi - lo, 0, None) / dt
+            if b1 - b0 == 1:
+                row[b0] += amp * (t1 - t0) / dt
+            elif b1 > b0:
+                row[b0] += amp * ((b0 + 1) * dt - t0) / dt
+                row[b0 + 1:b1 - 1] += amp
+                row[b1 - 1] += amp * (min(t1, b1 * dt) - (b1 - 1) * dt) / dt
     return leaky(x, dt, tau)
 
 
