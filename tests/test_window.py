@@ -221,6 +221,43 @@ def test_escape_aborts_at_once_and_keeps_the_completed_trials(tmp_path, monkeypa
     assert r.win is None                     # the window is gone with the session
 
 
+def test_escape_pressed_between_two_trials_aborts_at_the_next_screen(tmp_path, monkeypatch):
+    """An abort key pressed during the inter-trial interval is not forgotten with the other
+    pending input when the next screen comes up: it aborts there, before the stimulus."""
+    from psychopy import event
+
+    from vtexp.devices.sim import SimDevice
+    lx = experiment(tmp_path)
+    r = responder()
+    script = Participant([("instructions", "key", "space"), ("choice", "key", "1")])
+    script.install(monkeypatch, r)
+    pending: list[str] = []                  # keys pressed while no screen was reading
+    scripted = script.get_keys
+
+    def get_keys(keyList=None, modifiers=False, timeStamped=False):
+        hit = [k for k in pending if keyList is None or k in keyList]
+        if hit:
+            pending[:] = [k for k in pending if k not in hit]
+            return [(k, 0.0) for k in hit] if timeStamped else hit
+        return scripted(keyList=keyList, modifiers=modifiers, timeStamped=timeStamped)
+    monkeypatch.setattr(event, "getKeys", get_keys)
+    monkeypatch.setattr(event, "clearEvents", lambda *a, **k: pending.clear())
+    wait = SimDevice.wait
+
+    def iti(self, ms):                       # the participant presses escape in the pause
+        pending.extend(["x", "escape"])
+        wait(self, ms)
+    monkeypatch.setattr(SimDevice, "wait", iti)
+    with pytest.raises(SessionAborted, match="escape"):
+        run(lx, tmp_path, r)
+    d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"
+    meta = json.loads((d / "session.json").read_text())
+    events = pd.read_csv(next(d.glob("*_events.tsv")), sep="\t", dtype=str)
+    assert meta["status"] == "aborted" and meta["n_trials_logged"] == 1
+    assert set(events["trial"]) == {"1"}         # trial 2's stimulus never played
+    assert r.win is None
+
+
 class XKeyboard:
     """Real key presses, sent to the X server through its XTEST extension (as a keyboard's).
 

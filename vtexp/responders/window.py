@@ -423,8 +423,13 @@ class WindowResponder:
         self._frame()           # shown now; Escape pressed before it aborts here
 
     def _enter(self, name: str, draw: Callable[[], None], buttons: list[Button]) -> None:
-        """Make ``name`` the screen on show; forget input meant for the one before."""
+        """Make ``name`` the screen on show; forget input meant for the one before,
+        except the abort key (pressed between two trials, it aborts here)."""
         self.screen, self._draw, self.buttons = name, draw, buttons
+        key = self.options.abort_key
+        if self._event.getKeys(keyList=[key]):
+            self.close()
+            raise SessionAborted(f"the {key} key was pressed in the participant window")
         self._event.clearEvents()
         self._was_pressed = bool(self._mouse.getPressed()[0])
 
