@@ -513,7 +513,7 @@ def cmd_demo(args) -> int:
     _out("\nNext: how many participants would a study need?")
     _out("  vtexp simulate experiments/six_mode_ball.yaml --participants 15 --studies 1000 "
          "--target-power 0.8")
-    _out("Or run a person: vtexp run experiments/duration_interval_grid.yaml --responder window")
+    _out("Or run a person: README.md, \"Running a session with a participant\".")
     return 0
 
 
