@@ -182,3 +182,18 @@ def test_simulated_power_matches_the_paired_t_test_power(tmp_path):
     se = math.sqrt(analytic * (1 - analytic) / 600)
     assert abs(row["power"] - analytic) < 3 * se + 0.03, (row["power"], analytic, dz)
     assert row["ci_low"] <= row["power"] <= row["ci_high"]
+
+
+def test_the_smallest_n_reaches_the_target_and_the_one_below_does_not(tmp_path):
+    from vtexp.simulate import smallest_n
+    p = tmp_path / "paired.yaml"
+    p.write_text(PAIRED, encoding="utf-8")
+    table, results = smallest_n(p, 0.8, 60, seed=2, n_max=64, workers=2)
+    row = table.iloc[0]
+    n = int(row["smallest_n"])
+    assert n in results and row["power"] >= 0.8
+    assert results[n].table["power"].iloc[0] >= 0.8
+    if n > 4:
+        assert n - 1 in results and results[n - 1].table["power"].iloc[0] < 0.8
+    doubled = [m for m in (4, 8, 16, 32, 64) if m <= max(results)]
+    assert set(doubled) <= set(results)           # doubling from 4, then bisection

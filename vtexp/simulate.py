@@ -283,19 +283,17 @@ def smallest_n(path: Path | str, target: float, studies: int, *, alpha: float = 
                 on_step(n, results[n])
         return results[n].table.set_index("effect")["power"]
 
-    n, lows = 4, {}
+    n = 4
     while True:
         power = at(n)
         if (power >= target).all() or n >= n_max:
             break
-        lows = {e: n for e in power.index if power[e] < target}
         n = min(2 * n, n_max)
     out = []
     for e in at(4).index:
         hi = next((m for m in sorted(results) if at(m)[e] >= target), None)
         if hi is None:
-            out.append({"effect": e, "smallest_n": None, "power": float(at(n_max)[e])
-                        if n_max in results else float("nan")})
+            out.append({"effect": e, "smallest_n": None, "power": float(at(n)[e])})
             continue
         lo = max((m for m in sorted(results) if m < hi and at(m)[e] < target), default=None)
         while lo is not None and hi - lo > 1:
@@ -305,5 +303,4 @@ def smallest_n(path: Path | str, target: float, studies: int, *, alpha: float = 
             else:
                 lo = mid
         out.append({"effect": e, "smallest_n": hi, "power": float(at(hi)[e])})
-    del lows
     return pd.DataFrame(out), results
