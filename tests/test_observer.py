@@ -197,3 +197,23 @@ def test_the_smallest_n_reaches_the_target_and_the_one_below_does_not(tmp_path):
         assert n - 1 in results and results[n - 1].table["power"].iloc[0] < 0.8
     doubled = [m for m in (4, 8, 16, 32, 64) if m <= max(results)]
     assert set(doubled) <= set(results)           # doubling from 4, then bisection
+
+
+def test_wrong_observer_parameters_are_one_clear_message(cli, tmp_path):
+    text = (ROOT / "experiments" / "circle_vs_rectangle.yaml").read_text(encoding="utf-8")
+    bad = tmp_path / "cvr.yaml"
+    bad.write_text(text.replace("\nobserver:\n", "\nobserver:\n  params: {lapse: 3}\n"),
+                   encoding="utf-8")
+    r = cli("simulate", str(bad), "--studies", "4", "-n", "3", "--quiet")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert f"{bad}:" in r.stderr and "observer.params.lapse" in r.stderr
+    r = cli("simulate", str(ROOT / "experiments" / "whirlpool.yaml"), "--observer",
+            str(tmp_path / "missing.yaml"), "--quiet")
+    assert r.returncode == 2 and "no such observer file" in r.stderr
+
+
+def test_a_site_override_keeps_the_other_sites():
+    p = load_params(None, {"two_point_threshold_mm": {"palm": 12.0}})
+    assert p.two_point_threshold_mm["palm"] == 12.0
+    assert p.two_point_threshold_mm["lower_back"] == load_params().two_point_threshold_mm[
+        "lower_back"]

@@ -226,8 +226,11 @@ def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, se
     chunks = [ids[i:i + size] for i in range(0, len(ids), size)]
     tests, means = [], []
     args = [(seed, c, n) for c in chunks]
+    # Load here first: a wrong file or parameter is one clear error, not a broken pool.
+    setup = Setup.load(path, params_file=params_file, overrides=overrides)
     if workers == 1:
-        _init(str(path), params_file, overrides)
+        global _SETUP
+        _SETUP = setup
         results = map(_work, args)
         pool = None
     else:

@@ -98,7 +98,13 @@ class ObserverModel:
         exp = lx.experiment
         spec = getattr(exp, "observer", None) or ObserverSpec()
         profile = profile or DeviceProfile.load(exp.device)
-        params = load_params(params_file, {**spec.params, **(overrides or {})})
+        try:
+            params = load_params(params_file, {**spec.params, **(overrides or {})})
+        except InputError as e:
+            if e.path is None and (e.key or "").startswith("observer.params"):
+                raise InputError(e.message, path=str(lx.path), key=e.key,
+                                 line=lx.source.line_of(("observer", "params"))) from None
+            raise
         site = params.site_of(spec.body_site or profile.geometry.body_site)
         model = cls(lx, profile, params, spec, site)
         model._check()

@@ -76,16 +76,17 @@ def load_params(path: Path | str | None = None, overrides: dict[str, Any] | None
         raise InputError("no such observer file", path=str(p))
     doc = load_yaml(p)
     data = dict(doc.data or {})
-    for k, v in (overrides or {}).items():
-        if k == "population" and isinstance(v, dict):
-            data["population"] = {**data.get("population", {}), **v}
-        else:
-            data[k] = v
+    for k, v in (overrides or {}).items():       # mappings (sites, population) merge
+        data[k] = {**data[k], **v} if isinstance(v, dict) and isinstance(data.get(k), dict) \
+            else v
     try:
         return ObserverParams.model_validate(data)
     except ValidationError as e:
         err = e.errors()[0]
         key = ".".join(str(x) for x in err["loc"])
+        if err["loc"] and err["loc"][0] in (overrides or {}):
+            raise InputError(f"{err['msg']} (an override of {p.name})",
+                             key=f"observer.params.{key}") from None
         raise InputError(f"{err['msg']}", path=str(p), key=key) from None
 
 
