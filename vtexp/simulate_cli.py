@@ -102,7 +102,9 @@ def cmd_simulate(args) -> int:
         stop()
     _print_power(res)
     _print_means(res, factors)
-    doc = {"experiment": lx.experiment.name, "experiment_sha256": lx.sha256,
+    from .session import environment
+    doc = {"experiment": lx.experiment.name, "experiment_file": str(lx.path),
+           "experiment_sha256": lx.sha256, "environment": environment(),
            "participants": res.n, "studies": res.studies, "alpha": res.alpha,
            "seed": args.seed, "observer": args.observer or "protocols/observers/default.yaml",
            "seconds": round(res.seconds, 2), "workers": workers,
