@@ -177,9 +177,21 @@ def condition_means(setup: Setup, trials: pd.DataFrame) -> pd.DataFrame:
 _SETUP: Setup | None = None
 
 
+def _one_blas_thread():
+    """Keep numpy's BLAS to one thread in this process: the matrices are small, and a
+    BLAS thread pool per worker on top of a worker per core oversubscribes the cores
+    (measured: 2 workers took 1.8x as long as 1 process without this)."""
+    from threadpoolctl import threadpool_limits
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def _init(path: str, params_file, overrides) -> None:
-    global _SETUP
+    global _SETUP, _LIMIT
+    _LIMIT = _one_blas_thread()
     _SETUP = Setup.load(path, params_file=params_file, overrides=overrides)
+
+
+_LIMIT = None
 
 
 def _work(args) -> tuple[pd.DataFrame, pd.DataFrame, int]:
@@ -228,9 +240,11 @@ def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, se
     args = [(seed, c, n) for c in chunks]
     # Load here first: a wrong file or parameter is one clear error, not a broken pool.
     setup = Setup.load(path, params_file=params_file, overrides=overrides)
+    limit = None
     if workers == 1:
         global _SETUP
         _SETUP = setup
+        limit = _one_blas_thread()
         results = map(_work, args)
         pool = None
     else:
@@ -246,6 +260,8 @@ def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, se
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
+        if limit is not None:
+            limit.restore_original_limits()
     tests_df = pd.concat(tests, ignore_index=True)
     rows = []
     for (test, effect), g in tests_df.groupby(["test", "effect"], sort=False):
