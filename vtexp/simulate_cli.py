@@ -63,6 +63,10 @@ def _progress(total: int, quiet: bool, label: str):
 def _print_power(res, out=print) -> None:
     out(f"\nPower at N = {res.n} ({res.studies} studies, alpha = {res.alpha}; "
         f"{res.seconds:.1f} s):")
+    if res.table.empty:
+        out("  the experiment declares no test (no anova: or ordinal: under analysis:), so "
+            "there is no power to estimate; the predicted means follow")
+        return
     out(f"  {'effect':<58} {'power':>6}  {'95% CI':<13} {'median p':>9} {'mean η²p':>9}")
     for _, r in res.table.iterrows():
         pes = "" if r["mean_pes"] != r["mean_pes"] else f"{r['mean_pes']:.3f}"
