@@ -76,29 +76,44 @@ def stimulus_image(lx: LoadedExperiment, name: str) -> np.ndarray:
     return fn(**spec.params)
 
 
+def encoding_params(lx: LoadedExperiment, params: dict[str, Any]) -> dict[str, Any]:
+    """``params`` checked against the experiment's pipeline, with its defaults filled in."""
+    return PIPELINES[lx.experiment.encoding.pipeline][1].model_validate(params).model_dump()
+
+
+def encode(lx: LoadedExperiment, image: np.ndarray, profile: DeviceProfile,
+           params: dict[str, Any]) -> Pattern:
+    """``image`` through the experiment's encoding pipeline with ``params``."""
+    fn, _ = PIPELINES[lx.experiment.encoding.pipeline]
+    return fn(image, profile.rows, profile.cols, **encoding_params(lx, params))
+
+
+def code(lx: LoadedExperiment, pattern: Pattern, profile: DeviceProfile,
+         params: dict[str, Any]) -> Schedule:
+    """``pattern`` through the experiment's coding protocol with ``params`` (no safety check)."""
+    fn, model = CODINGS[lx.experiment.coding.protocol]
+    return fn(pattern, profile, **model.model_validate(params).model_dump())
+
+
 def compile_conditions(lx: LoadedExperiment, profile: DeviceProfile | None = None
                        ) -> list[Condition]:
     """Encode and code every condition; raise InputError naming an unsafe one."""
     exp = lx.experiment
     profile = profile or DeviceProfile.load(exp.device)
-    enc_fn, enc_model = PIPELINES[exp.encoding.pipeline]
-    cod_fn, cod_model = CODINGS[exp.coding.protocol]
     images: dict[str, np.ndarray] = {}
     patterns: dict[tuple, Pattern] = {}
     conditions = enumerate_conditions(lx)
     for c in conditions:
         if c.stimulus not in images:
             images[c.stimulus] = stimulus_image(lx, c.stimulus)
-        enc = enc_model.model_validate(c.encoding_params).model_dump()
-        key = (c.stimulus, tuple(sorted(enc.items())))
+        key = (c.stimulus, tuple(sorted(encoding_params(lx, c.encoding_params).items())))
         if key not in patterns:
-            patterns[key] = enc_fn(images[c.stimulus], profile.rows, profile.cols, **enc)
+            patterns[key] = encode(lx, images[c.stimulus], profile, c.encoding_params)
         c.pattern = patterns[key]
         if not c.pattern.points:
             raise lx.error(f"stimulus {c.stimulus!r} gives an empty pattern on {profile.name} "
                            "(no shape found in the image)", ("stimuli", c.stimulus))
-        cod = cod_model.model_validate(c.coding_params).model_dump()
-        c.schedule = cod_fn(c.pattern, profile, **cod)
+        c.schedule = code(lx, c.pattern, profile, c.coding_params)
         try:
             check_schedule(c.schedule, profile)
         except UnsafeStimulus as e:

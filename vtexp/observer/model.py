@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
-from ..compile import Condition, stimulus_image
+from ..compile import Condition, code, encode, stimulus_image
 from ..errors import InputError
 from ..experiment import LoadedExperiment
 from ..model import DeviceProfile, PlayReport
@@ -158,9 +158,7 @@ class ObserverModel:
     # ------------------------------------------------------------------ templates
     def template_report(self, name: str, condition: Condition) -> PlayReport:
         """The answer ``name`` as the device would play it in ``condition``."""
-        from ..coding import CODINGS
         from ..devices.sim import SimDevice
-        from ..encoding import PIPELINES
         from ..stimuli import GENERATORS
 
         ts = self._template_spec(name, "")
@@ -180,15 +178,11 @@ class ObserverModel:
                 fn, _ = GENERATORS[ts.generator]
                 image = fn(**ts.params)
             self._images[name] = image
-        enc_fn, enc_model = PIPELINES[exp.encoding.pipeline]
-        cod_fn, cod_model = CODINGS[exp.coding.protocol]
-        enc = enc_model.model_validate(condition.encoding_params).model_dump()
-        pattern = enc_fn(image, self.profile.rows, self.profile.cols, **enc)
+        pattern = encode(self.lx, image, self.profile, condition.encoding_params)
         if not pattern.points:
             raise self._error(f"template {name!r} gives an empty pattern on {self.profile.name}",
                               ("observer", "templates", name))
-        cod = cod_model.model_validate(condition.coding_params).model_dump()
-        schedule = cod_fn(pattern, self.profile, **cod)
+        schedule = code(self.lx, pattern, self.profile, condition.coding_params)
         with SimDevice(self.profile) as dev:
             report = dev.play(schedule)
         if ts.scramble:
