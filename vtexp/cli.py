@@ -444,6 +444,8 @@ def _headline(analysis) -> str:
 
 
 def cmd_demo(args) -> int:
+    import pandas as pd
+
     from .analysis import load_sessions
     from .analysis.report import write_reports
     from .compile import compile_conditions
@@ -498,7 +500,7 @@ def cmd_demo(args) -> int:
         else:
             parts = []
             for q, g in sub.groupby("question"):
-                parts.append(f"mean {q} {pd_mean(g['answer']):.2f}")
+                parts.append(f"mean {q} {pd.to_numeric(g['answer']).mean():.2f}")
             what = ", ".join(parts)
         _out(f"  {name:<24} {args.participants} x {n_trials} trials, {what}")
         _out(f"  {'':<24} {_headline(a)}")
@@ -515,11 +517,6 @@ def cmd_demo(args) -> int:
          "--target-power 0.8")
     _out("Or run a person: README.md, \"Running a session with a participant\".")
     return 0
-
-
-def pd_mean(col) -> float:
-    import pandas as pd
-    return float(pd.to_numeric(col, errors="coerce").mean())
 
 
 # --------------------------------------------------------------------------- parser
