@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from conftest import ROOT, write_experiment
-from vtexp.compile import compile_conditions, enumerate_conditions
+from vtexp.compile import compile_conditions, enumerate_conditions, load_and_compile
 from vtexp.devices import open_device
 from vtexp.errors import InputError
 from vtexp.experiment import available_codings, load_coding_file, load_experiment
@@ -56,21 +56,20 @@ def without_source(dump: dict) -> dict:
 
 @pytest.mark.parametrize("path", EXPERIMENTS, ids=lambda p: p.stem)
 def test_every_shipped_experiment_validates(path):
-    lx = load_experiment(path)                  # with every stimulus checked for safety
+    lx, _ = load_and_compile(path)              # with every stimulus checked for safety
     assert lx.experiment.coding.protocol is not None
 
 
 @pytest.mark.parametrize("path", [p for p in EXPERIMENTS if "ref:" in p.read_text()],
                          ids=lambda p: p.stem)
 def test_a_reference_loads_as_the_inline_form(tmp_path, path):
-    lx = load_experiment(path, check_stimuli=False)
+    lx = load_experiment(path)
     src = lx.experiment.coding.source
     cf, sha = load_coding_file(src.file)
     data = yaml.safe_load(path.read_text())
     assert set(data["coding"]) == {"ref"}
     data["coding"] = {"protocol": cf.protocol, "params": cf.params}
-    inline = load_experiment(write_experiment(tmp_path, yaml.safe_dump(data, sort_keys=False)),
-                             check_stimuli=False)
+    inline = load_experiment(write_experiment(tmp_path, yaml.safe_dump(data, sort_keys=False)))
     assert lx.experiment.coding.protocol == inline.experiment.coding.protocol
     assert lx.experiment.coding.params == inline.experiment.coding.params
     assert without_source(lx.experiment.model_dump(mode="json")) == \

@@ -17,7 +17,7 @@ from vtexp.experiment import load_experiment
 @pytest.fixture(scope="module")
 def grid():
     from conftest import GRID
-    lx = load_experiment(GRID, check_stimuli=False)
+    lx = load_experiment(GRID)
     return lx, compile_conditions(lx)
 
 

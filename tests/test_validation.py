@@ -8,11 +8,13 @@ import pytest
 
 from conftest import write_experiment
 from vtexp.errors import InputError
+from vtexp.compile import load_and_compile
 from vtexp.experiment import load_experiment
 
 
 def load(tmp_path, text):
-    return load_experiment(write_experiment(tmp_path, text))
+    """Loaded, checked and compiled: every error a session would meet before it starts."""
+    return load_and_compile(write_experiment(tmp_path, text))[0]
 
 
 def error_of(tmp_path, text) -> InputError:

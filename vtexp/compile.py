@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,7 +19,7 @@ import numpy as np
 from .coding import CODINGS
 from .encoding import PIPELINES
 from .errors import InputError, UnsafeStimulus
-from .experiment import LoadedExperiment
+from .experiment import LoadedExperiment, load_experiment
 from .model import DeviceProfile, Pattern, Schedule
 from .safety import check_schedule
 from .stimuli import GENERATORS, read_image
@@ -127,3 +128,12 @@ def _condition_keypath(lx: LoadedExperiment, c: Condition) -> tuple:
         if lx.experiment.factors[n].sets == "coding":
             return ("factors", n, "levels", lvl)
     return ("coding", "params")
+
+
+def load_and_compile(path: str | Path, profile: DeviceProfile | None = None
+                     ) -> tuple[LoadedExperiment, list[Condition]]:
+    """An experiment as a session needs it: loaded and checked
+    (:func:`~vtexp.experiment.load_experiment`), then every condition encoded, coded
+    and checked against the device's safety limits (:func:`compile_conditions`)."""
+    lx = load_experiment(path)
+    return lx, compile_conditions(lx, profile)

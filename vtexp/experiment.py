@@ -479,8 +479,13 @@ class LoadedExperiment:
         return p if p.is_absolute() else self.path.parent / p
 
 
-def load_experiment(path: str | Path, *, check_stimuli: bool = True) -> LoadedExperiment:
-    """Load, validate and check an experiment file; raise :class:`InputError` if wrong."""
+def load_experiment(path: str | Path) -> LoadedExperiment:
+    """Load, validate and check an experiment file; raise :class:`InputError` if wrong.
+
+    Checks the schema and every reference (device, stimulus files, generators,
+    pipelines, codings and their parameters). Encoding the stimuli and checking
+    their safety is :func:`vtexp.compile.load_and_compile`'s.
+    """
     loaded = load_yaml(path)
     if not isinstance(loaded.data, dict):
         raise InputError("expected a mapping of keys (name:, title:, ...) at the top level",
@@ -491,10 +496,6 @@ def load_experiment(path: str | Path, *, check_stimuli: bool = True) -> LoadedEx
         raise format_validation_error(exc, loaded) from None
     lx = LoadedExperiment(exp, loaded)
     _check(lx)
-    if check_stimuli:
-        from .compile import compile_conditions
-
-        compile_conditions(lx)          # encodes every condition and checks its safety
     return lx
 
 

@@ -16,6 +16,7 @@ exclusively: a run never overwrites an existing session.
 
 from __future__ import annotations
 
+import json
 import platform
 import re
 import sys
@@ -57,6 +58,28 @@ def check_session(session: int) -> int:
         raise InputError(f"session must be a whole number from 1 to 9999 (got {session!r})",
                          key="--session")
     return session
+
+
+def list_sessions(data, experiment: str, participant: str) -> list[dict]:
+    """The sessions of ``participant`` already in the data folder, by number: each a dict
+    with ``session``, ``status`` (from session.json, or ``unreadable``), ``logged``,
+    ``planned``, ``started`` and ``reason``."""
+    found = []
+    folder = Path(data) / experiment / f"sub-{participant}"
+    for d in folder.glob("ses-*") if folder.is_dir() else ():
+        m = re.fullmatch(r"ses-(\d+)", d.name)
+        if not (m and d.is_dir()):
+            continue
+        try:
+            meta = json.loads((d / "session.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            meta = {}
+        meta = meta if isinstance(meta, dict) else {}
+        found.append({"session": int(m[1]), "status": meta.get("status") or "unreadable",
+                      "logged": meta.get("n_trials_logged"),
+                      "planned": meta.get("n_trials_planned"),
+                      "started": meta.get("started_at") or "", "reason": meta.get("reason")})
+    return sorted(found, key=lambda x: x["session"])
 
 
 @dataclass(frozen=True)

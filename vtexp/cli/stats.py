@@ -8,13 +8,12 @@ Registered in ``vtexp.cli.build_parser`` with :func:`register`.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import sys
 import warnings
 from pathlib import Path
-
-import argparse
 
 from ..errors import InputError
 
@@ -47,12 +46,12 @@ def _records(df) -> list[dict]:
 
 
 def _print_table(df) -> None:
-    from .report import md_table
+    from ..analysis.report import md_table
     print(md_table("anova", df))
 
 
 def _run(fn, args, **kw):
-    from .anova import MissingCellsWarning
+    from ..analysis.anova import MissingCellsWarning
 
     df = read_table(args.file)
     with warnings.catch_warnings(record=True) as caught:
@@ -67,8 +66,8 @@ def _run(fn, args, **kw):
 
 
 def cmd_rm_anova(args) -> int:
-    from .anova import rm_anova
-    from .pipeline import apa_anova
+    from ..analysis.anova import rm_anova
+    from ..analysis.pipeline import apa_anova
 
     t = _run(rm_anova, args)
     if args.json:
@@ -87,7 +86,7 @@ def cmd_rm_anova(args) -> int:
 
 
 def cmd_simple_effects(args) -> int:
-    from .anova import simple_effects
+    from ..analysis.anova import simple_effects
 
     t = _run(simple_effects, args, effect=args.effect, by=args.by, method=args.method)
     if args.json:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import yaml
 
-from .errors import InputError
+from ..errors import InputError
 
 # The coding each pipeline's paper uses, unless --coding says otherwise.
 DEFAULT_CODING = {"height-contours": "contour-modes", "edge-trace": "sequential-trace",
@@ -30,7 +30,7 @@ def _params(items: list[str] | None, flag: str) -> dict:
 
 def load_image(spec: str):
     """IMAGE argument: a file, ``camera[:N]``, or ``GENERATOR:key=value,...``."""
-    from .stimuli import GENERATORS, read_camera, read_image
+    from ..stimuli import GENERATORS, read_camera, read_image
 
     head, sep, rest = spec.partition(":")
     if spec == "camera" or (head == "camera" and rest.isdigit()):
@@ -52,12 +52,12 @@ def load_image(spec: str):
 def cmd_encode(args) -> int:
     from pydantic import ValidationError
 
-    from .coding import CODINGS
-    from .draw import draw_pattern, schedule_frames, write_gif, write_png
-    from .encoding import PIPELINES
-    from .errors import UnsafeStimulus
-    from .model import DeviceProfile
-    from .safety import check_schedule
+    from ..coding import CODINGS
+    from ..draw import draw_pattern, schedule_frames, write_gif, write_png
+    from ..encoding import PIPELINES
+    from ..errors import UnsafeStimulus
+    from ..model import DeviceProfile
+    from ..safety import check_schedule
 
     if args.pipeline not in PIPELINES:
         raise InputError(f"unknown pipeline {args.pipeline!r}; available: "

@@ -7,12 +7,11 @@ import os
 import sys
 from pathlib import Path
 
-import pandas as pd
-
-from .errors import InputError
+from ..errors import InputError
 
 
-def add_parser(sub) -> None:
+def register(sub) -> None:
+    """Add ``vtexp simulate`` to the ``vtexp`` parser."""
     s = sub.add_parser(
         "simulate", help="run whole studies of model participants: power of each effect",
         description="Run M simulated studies of N model participants each through the "
@@ -36,6 +35,7 @@ def add_parser(sub) -> None:
                    help="processes (default: one per core)")
     s.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     s.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    s.set_defaults(func=cmd_simulate)
 
 
 def _progress(total: int, quiet: bool, label: str):
@@ -80,19 +80,19 @@ def _print_means(res, factors: list[str], out=print) -> None:
     for (q, meas), g in t.groupby(["question", "measure"], sort=False):
         out(f"  {q} ({meas}):")
         for _, r in g.iterrows():
-            lv = ", ".join(f"{f}={r[f]}" for f in factors if f in r and pd.notna(r[f]))
+            lv = ", ".join(f"{f}={r[f]}" for f in factors if f in r and r[f] == r[f])
             out(f"    {lv:<58} {r['predicted']:.3f}")
 
 
 def cmd_simulate(args) -> int:
-    from .experiment import load_experiment
-    from .simulate import run_power, smallest_n
+    from ..compile import load_and_compile
+    from ..simulate import run_power, smallest_n
 
     if not 0 < args.alpha < 1:
         raise InputError("alpha must be between 0 and 1", key="--alpha")
     if args.target_power is not None and not 0 < args.target_power < 1:
         raise InputError("the target power must be between 0 and 1", key="--target-power")
-    lx = load_experiment(args.file)            # clear errors before any worker starts
+    lx, _ = load_and_compile(args.file)        # clear errors before any worker starts
     factors = list(lx.experiment.factors)
     workers = args.workers or os.cpu_count() or 1
     print(f"{lx.experiment.name}: {args.studies} studies of {args.participants} model "
@@ -106,7 +106,7 @@ def cmd_simulate(args) -> int:
         stop()
     _print_power(res)
     _print_means(res, factors)
-    from .session import environment
+    from ..session import environment
     doc = {"experiment": lx.experiment.name, "experiment_file": str(lx.path),
            "experiment_sha256": lx.sha256, "environment": environment(),
            "participants": res.n, "studies": res.studies, "alpha": res.alpha,

@@ -9,8 +9,9 @@
 - ``emulate --profile NAME``: an emulated device on a pseudo-terminal, until
   stopped (Ctrl-C or SIGTERM), optionally with line faults.
 
-Only argparse is imported here; each command imports what it needs, so that
-``vtexp --help`` stays fast. Errors are :class:`~vtexp.errors.VtexpError`, which
+The checks themselves are :mod:`vtexp.devices.check` (``vtexp run`` makes them
+too). Only argparse is imported here; each command imports what it needs, so
+that ``vtexp --help`` stays fast. Errors are :class:`~vtexp.errors.VtexpError`, which
 the ``vtexp`` command prints as one message.
 """
 
@@ -20,9 +21,7 @@ import argparse
 import sys
 import time
 
-
-def _out(msg: str = "") -> None:
-    print(msg, flush=True)
+from ._io import out
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -75,136 +74,24 @@ def cmd_list(args: argparse.Namespace) -> int:
 
     ports = sorted(list_ports.comports(), key=lambda p: p.device)
     if not ports:
-        _out("no serial ports found. A USB device appears as /dev/ttyACM* or /dev/ttyUSB* "
-             "(Linux), /dev/cu.usbmodem* (macOS) or COM* (Windows).")
+        out("no serial ports found. A USB device appears as /dev/ttyACM* or /dev/ttyUSB* "
+            "(Linux), /dev/cu.usbmodem* (macOS) or COM* (Windows).")
     else:
         w = max(len(p.device) for p in ports)
-        _out(f"{'PORT':<{w}}  DESCRIPTION  (HARDWARE ID)")
+        out(f"{'PORT':<{w}}  DESCRIPTION  (HARDWARE ID)")
         for p in ports:
-            _out(f"{p.device:<{w}}  {p.description}  ({p.hwid})")
-    _out("No hardware? 'vtexp device emulate --profile pad_20x20' serves an emulated one.")
+            out(f"{p.device:<{w}}  {p.description}  ({p.hwid})")
+    out("No hardware? 'vtexp device emulate --profile pad_20x20' serves an emulated one.")
     return 0
 
 
 # --------------------------------------------------------------------------- check
 
-def _low_pulse(profile, row: int, col: int, on_ms: float):
-    """One pulse at the lowest non-zero intensity the profile declares."""
-    from ..model import LevelDrive, Pulse, PulseTrain
-
-    d = profile.drive
-    if isinstance(d, LevelDrive):
-        return Pulse(row=row, col=col, onset_ms=0, duration_ms=on_ms, level=1)
-    lim = profile.limits
-    freq = min(d.frequencies_hz)
-    width = min(d.pulse_width_ms)
-    amp = min(d.amplitude_v, lim.max_amplitude_v or d.amplitude_v)
-    return Pulse(row=row, col=col, onset_ms=0, duration_ms=on_ms,
-                 train=PulseTrain(amplitude_v=amp, frequency_hz=freq, pulse_width_ms=width))
-
-
-def _percentile(xs: list[float], q: float) -> float:
-    s = sorted(xs)
-    k = (len(s) - 1) * q
-    lo, hi = int(k), min(int(k) + 1, len(s) - 1)
-    return s[lo] + (s[hi] - s[lo]) * (k - lo)
-
-
-def identity(dev, profile) -> list[str]:
-    """What the open device reports about itself, checked against ``profile``.
-
-    Raises :class:`~vtexp.errors.DeviceError` if the device is not the array the
-    profile describes (the serial backend already refuses one at its handshake).
-    """
-    from ..errors import DeviceError
-
-    info = dev.info()
-    if (info.profile, info.rows, info.cols) != (profile.name, profile.rows, profile.cols):
-        raise DeviceError(f"the device opened reports {info.rows} x {info.cols} actuators "
-                          f"(profile {info.profile!r}), but profile {profile.name!r} "
-                          f"describes {profile.rows} x {profile.cols}. Nothing was played.")
-    lines = [f"device:   {info.backend} {info.port or ''}".rstrip(),
-             f"firmware: {info.firmware}   protocol: {info.protocol}",
-             (f"geometry: {info.rows} x {info.cols} as profile {profile.name} expects "
-              f"({profile.actuator}, {profile.drive.kind})")]
-    if info.details:
-        lines.append("details:  " + ", ".join(f"{k}={v}" for k, v in info.details.items()))
-    return lines
-
-
-def round_trip(dev, pings: int) -> str | None:
-    """Time ``pings`` heartbeats over the link; None for a device without one (sim).
-
-    A heartbeat is timed once, without resending. One left unanswered within the
-    reply timeout (a busy computer, a noisy line) is counted, and the device is
-    then asked for its status the way a session asks, resent as often as the link
-    allows: only if that fails too does the check fail.
-    """
-    from ..errors import DeviceError
-    from .link import DeviceLost, DeviceRefused
-
-    if not hasattr(dev, "ping") or pings <= 0:
-        return None
-    rtts: list[float] = []
-    for _ in range(pings):
-        try:
-            rtts.append(dev.ping())
-        except (DeviceLost, DeviceRefused):
-            raise
-        except DeviceError:
-            dev.status()
-    line = f"round trip ({pings} heartbeats): "
-    if rtts:
-        line += (f"p50 {_percentile(rtts, 0.5):.2f} ms, p95 {_percentile(rtts, 0.95):.2f} ms, "
-                 f"max {max(rtts):.2f} ms")
-    if len(rtts) < pings:
-        line += ("; " if rtts else "") + (f"{pings - len(rtts)} not answered in time (the "
-                                          "device answered when asked again)")
-    return line
-
-
-def all_off(dev) -> str:
-    """Turn every actuator off and have the device confirm it; raise DeviceError if not."""
-    from ..errors import DeviceError
-    from .wire import DeviceState
-
-    dev.all_off()
-    if hasattr(dev, "status"):                 # a device on the wire: ask it
-        state = dev.status().state
-        if state != DeviceState.IDLE:
-            names = {v: k.lower() for k, v in vars(DeviceState).items() if k.isupper()}
-            raise DeviceError(f"the device is {names.get(state, state)} after ALL_OFF, not "
-                              "idle; check it with 'vtexp device check' before any trial")
-        emulator = getattr(dev, "emulator", None)
-        if emulator is not None and not emulator.all_outputs_off():
-            raise DeviceError("the emulated device still drives an output after ALL_OFF")
-        return "actuators: all off (ALL_OFF acknowledged, the device reports it is idle)"
-    state = getattr(dev, "state", None)         # the sim's record of every actuator
-    if state is not None and state.any():
-        raise DeviceError("the simulated device still drives an actuator after all-off")
-    return "actuators: all off"
-
-
-def check_ready(dev, profile, *, pings: int = 20, say=_out) -> None:
-    """Is the open device ready to play? The first part of ``vtexp device check``, and
-    what ``vtexp run`` checks before the first trial. It plays nothing.
-
-    The device's identity against the profile, the link's round trip, and every
-    actuator off. Each result is passed to ``say`` as it comes; a failure raises
-    :class:`~vtexp.errors.DeviceError` (or the device's own error).
-    """
-    for line in identity(dev, profile):
-        say(line)
-    line = round_trip(dev, pings)
-    if line:
-        say(line)
-    say(all_off(dev))
-
-
 def cmd_check(args: argparse.Namespace) -> int:
+    from ..devices import open_device
+    from ..devices.check import check_ready, low_pulse
     from ..errors import InputError
     from ..model import DeviceProfile, Schedule
-    from . import open_device
 
     profile = DeviceProfile.load(args.profile)
     on_ms = min(args.on_ms, profile.limits.max_on_ms)
@@ -215,18 +102,18 @@ def cmd_check(args: argparse.Namespace) -> int:
     with dev:
         check_ready(dev, profile, pings=args.pings)
         n = profile.rows * profile.cols
-        low = _low_pulse(profile, 0, 0, on_ms)
+        low = low_pulse(profile, 0, 0, on_ms)
         what = (f"level {low.level}" if low.level is not None else
                 f"{low.train.amplitude_v:g} V, {low.train.frequency_hz:g} Hz, "
                 f"{low.train.pulse_width_ms:g} ms pulses")
-        _out(f"each of the {n} actuators in turn, {what} for {on_ms:g} ms"
-             + ("" if args.yes else "; answer y (it moved), n (it did not), r (again), "
+        out(f"each of the {n} actuators in turn, {what} for {on_ms:g} ms"
+            + ("" if args.yes else "; answer y (it moved), n (it did not), r (again), "
                                     "q (stop)"))
         failed: list[tuple[int, int]] = []
         played = 0
         for row in range(profile.rows):
             for col in range(profile.cols):
-                pulse = _low_pulse(profile, row, col, on_ms)
+                pulse = low_pulse(profile, row, col, on_ms)
                 while True:
                     dev.play(Schedule(device=profile.name, pulses=[pulse]))
                     if args.yes:
@@ -240,7 +127,7 @@ def cmd_check(args: argparse.Namespace) -> int:
                     if answer != "r":
                         break
                 if answer == "q":
-                    _out(f"stopped after {played} of {n} actuators")
+                    out(f"stopped after {played} of {n} actuators")
                     return _check_summary(failed, played, n, dev, args.yes)
                 played += 1
                 if answer.startswith("n"):
@@ -251,26 +138,26 @@ def cmd_check(args: argparse.Namespace) -> int:
 def _check_summary(failed, played, n, dev, unattended: bool) -> int:
     stats = dev.link_stats() if hasattr(dev, "link_stats") else {}
     if stats:
-        _out(f"link: {stats['tx_frames']} frames sent, {stats['rx_frames']} received, "
-             f"{stats['rx_bad_total']} bad frames received, {stats['retries']} resent")
+        out(f"link: {stats['tx_frames']} frames sent, {stats['rx_frames']} received, "
+            f"{stats['rx_bad_total']} bad frames received, {stats['retries']} resent")
     if failed:
-        _out(f"{len(failed)} of {played} actuators did not move: "
-             + ", ".join(f"(row {r}, col {c})" for r, c in failed))
+        out(f"{len(failed)} of {played} actuators did not move: "
+            + ", ".join(f"(row {r}, col {c})" for r, c in failed))
         return 1
-    _out(f"{played} of {n} actuators played"
-         + (" (not confirmed by a person: --yes)" if unattended else " and confirmed"))
+    out(f"{played} of {n} actuators played"
+        + (" (not confirmed by a person: --yes)" if unattended else " and confirmed"))
     return 0 if played == n else 1
 
 
 # --------------------------------------------------------------------------- monitor
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    from .monitor import open_tap
+    from ..devices.monitor import open_tap
 
     tap = open_tap(args.device, args.baud, sys.stdout)
     port = tap.start()
-    _out(f"monitoring {args.device}; connect the experiment to serial:{port} "
-         "(Ctrl-C to stop)")
+    out(f"monitoring {args.device}; connect the experiment to serial:{port} "
+        "(Ctrl-C to stop)")
     try:
         while not tap.wait(0.2):
             pass
@@ -281,17 +168,17 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     if tap.error:
         from ..errors import DeviceError
         raise DeviceError(f"monitor stopped: {tap.error}")
-    _out("monitor stopped")
+    out("monitor stopped")
     return 0
 
 
 # --------------------------------------------------------------------------- emulate
 
 def cmd_emulate(args: argparse.Namespace) -> int:
+    from ..devices import wire
+    from ..devices.emulator import Faults, PtyEmulator
     from ..errors import InputError
     from ..model import DeviceProfile
-    from . import wire
-    from .emulator import Faults, PtyEmulator
 
     profile = DeviceProfile.load(args.profile)
     for name in ("drop", "corrupt"):
@@ -303,7 +190,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         t0 = time.perf_counter()
 
         def trace(direction: str, item: object) -> None:
-            from .monitor import ARROWS
+            from ..devices.monitor import ARROWS
             t = (time.perf_counter() - t0) * 1000
             text = (f"BAD FRAME ({item.kind}: {item})" if isinstance(item, wire.WireError)
                     else wire.describe(item))
@@ -315,8 +202,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         clock_ppm=args.clock_ppm, trace=trace, **over)
     port = emu.start()
     cfg = emu.config
-    _out(f"emulating {profile.name} ({cfg.rows}x{cfg.cols}, {cfg.firmware}) on {port}")
-    _out(f"use it with --device serial:{port}   (Ctrl-C to stop)")
+    out(f"emulating {profile.name} ({cfg.rows}x{cfg.cols}, {cfg.firmware}) on {port}")
+    out(f"use it with --device serial:{port}   (Ctrl-C to stop)")
     try:
         while True:
             time.sleep(0.2)
@@ -328,6 +215,6 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     finally:
         emu.stop()
     c = emu.firmware.counters
-    _out(f"emulator stopped: {c.rx_frames} frames received, {c.rx_bad} bad, "
-         f"{c.duplicates} repeats answered from cache, {c.watchdog_trips} watchdog trips")
+    out(f"emulator stopped: {c.rx_frames} frames received, {c.rx_bad} bad, "
+        f"{c.duplicates} repeats answered from cache, {c.watchdog_trips} watchdog trips")
     return 0

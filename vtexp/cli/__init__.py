@@ -1,0 +1,73 @@
+"""The ``vtexp`` command line: one module per command group.
+
+=====================  ==================================================
+module                 commands
+=====================  ==================================================
+``experiment``         ``validate``, ``schema``, ``plan``
+``run``                ``run`` (the experimenter's prompts: ``prompts``)
+``analyze``            ``analyze``
+``stats``              ``stats ...`` on any tidy table
+``demo``               ``demo``
+``simulate``           ``simulate``
+``encode``             ``encode``
+``device``             ``device list|check|monitor|emulate``
+=====================  ==================================================
+
+Each module has a ``register(sub)`` that adds its parsers, and imports what a
+command needs only when it runs, so that ``vtexp --help`` stays fast. Imports go
+one way: this package uses the rest of vtexp, nothing in vtexp imports it.
+
+Every input mistake ends in one message on stderr naming the file, line and
+key (no traceback) and a non-zero exit status: 2 for bad input, 3 for device
+faults, 4 for a broken installation, 130 when interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+
+from .. import __version__
+from ..errors import VtexpError
+from . import analyze, demo, device, encode, experiment, run, simulate, stats
+from ._io import err
+
+#: The command groups, in the order ``vtexp --help`` lists them.
+GROUPS = (experiment, run, analyze, stats, encode, device, demo, simulate)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="vtexp", description="Psychophysics experiments on tactile shape displays.")
+    p.add_argument("--version", action="version", version=f"vtexp {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for group in GROUPS:
+        group.register(sub)
+    return p
+
+
+def _sigterm(signum, frame):
+    raise KeyboardInterrupt
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    signal.signal(signal.SIGTERM, _sigterm)     # turn the actuators off on 'kill' too
+    try:
+        return args.func(args)
+    except VtexpError as e:
+        err(str(e))
+        return e.exit_code
+    except KeyboardInterrupt:
+        err("interrupted; every actuator was turned off and completed trials are kept")
+        return 130
+    except BrokenPipeError:                     # e.g. 'vtexp plan ... | head'
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

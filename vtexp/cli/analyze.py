@@ -1,0 +1,71 @@
+"""``vtexp analyze``: statistics, figures and a report from logged sessions."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from ..errors import InputError
+from ._io import out
+
+
+def cmd_analyze(args) -> int:
+    from ..analysis import load_sessions, recognition_rates
+    from ..analysis.report import markdown_table, write_reports
+
+    trials, sessions = load_sessions(args.dirs, strict=args.strict)
+    for s in sessions:
+        for w in s.warnings:
+            kind = "WARNING: CHECKSUM MISMATCH" if "checksum differs" in w else "warning"
+            print(f"vtexp: {kind}: {w}", file=sys.stderr)
+    specs = {}
+    if args.experiment:
+        from ..experiment import load_experiment
+        exp = load_experiment(args.experiment).experiment
+        if exp.analysis is None:
+            raise InputError("has no 'analysis:' section to use", path=args.experiment)
+        specs[exp.name] = exp.analysis
+    if args.out:
+        out_dir = Path(args.out)
+    else:
+        first = Path(args.dirs[0])
+        out_dir = (first if not (first / "session.json").exists() else Path(".")) / "report"
+    rep, full = write_reports(trials, sessions, out_dir, specs=specs)
+    for exp in sorted(trials["experiment"].unique()):
+        sub = trials[trials["experiment"] == exp]
+        factors = next(s.factors for s in sessions if s.meta["experiment"] == exp)
+        if sub["correct"].notna().any():
+            per = recognition_rates(sub, factors, per_participant=True)
+            wide = per.pivot_table(index=factors, columns="participant", values="rate",
+                                   observed=True)
+            wide.columns = [f"sub-{c}" for c in wide.columns]
+            wide["mean"] = recognition_rates(sub, factors).set_index(factors)["rate"]
+            out(f"\n{exp}: recognition rate per condition (rows) and participant (columns)")
+            out(markdown_table(wide.reset_index()))
+        a = full[exp]["analysis"]
+        for w in a.warnings:
+            print(f"vtexp: warning: {exp}: {w}", file=sys.stderr)
+        if a.sentences:
+            out(f"\n{exp}: results")
+            for line in a.sentences:
+                out(f"  {line}")
+        out(f"\n{exp}: report {full[exp]['html']} (+ report.md and CSV tables in "
+            f"{full[exp]['html'].parent}/)")
+    out(f"\n{len(sessions)} session(s), {len(trials)} trials. Tables and report in {out_dir}/ "
+        f"(report: {rep.markdown})")
+    return 0
+
+
+def register(sub) -> None:
+    """Add ``vtexp analyze`` to the ``vtexp`` parser."""
+    s = sub.add_parser("analyze", help="statistics and reports from logged sessions")
+    s.add_argument("dirs", nargs="+", metavar="DIR",
+                   help="session folders, or folders holding them (any mix)")
+    s.add_argument("--out", help="folder for the tables and report")
+    s.add_argument("--experiment", metavar="FILE",
+                   help="use this experiment file's 'analysis:' section instead of the one "
+                        "recorded in the sessions")
+    s.add_argument("--strict", action="store_true",
+                   help="refuse sessions whose files changed since they ended (checksum "
+                        "mismatch) instead of warning")
+    s.set_defaults(func=cmd_analyze)

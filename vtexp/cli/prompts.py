@@ -1,0 +1,115 @@
+"""What vtexp asks the experimenter at the terminal, and how it shows what it found.
+
+Every prompt reads one line with :func:`input`; an input that has ended (a closed
+terminal, a pipe) is an answer too: no, or an :class:`~vtexp.errors.InputError`
+naming the option that would have given it.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from ..errors import InputError
+from ._io import out
+
+
+def yes(prompt: str) -> bool:
+    try:
+        return input(prompt).strip().lower() in ("y", "yes")
+    except (EOFError, OSError):     # input ended, or the terminal went away
+        return False
+
+
+def status_of(x: dict) -> str:
+    status = "did not close (killed?)" if x["status"] == "running" else x["status"]
+    if x["planned"] is None:
+        return f"{status}, no session.json"
+    return f"{status}, {x['logged']} of {x['planned']} trials"
+
+
+def describe_session(x: dict) -> str:
+    line = f"ses-{x['session']}  {status_of(x)}"
+    if x["started"]:
+        line += f", started {x['started'][:16].replace('T', ' ')}"
+    return line + (f" ({x['reason']})" if x["reason"] else "")
+
+
+def ask_participant() -> str:
+    from ..session import check_participant
+
+    while True:
+        try:
+            answer = input("Participant id: ").strip()
+        except (EOFError, OSError):     # input ended, or the terminal went away
+            raise InputError("missing: no participant id was given",
+                             key="--participant") from None
+        try:
+            return check_participant(answer)
+        except InputError as e:
+            print(f"  {e.message}", flush=True)
+
+
+def ask_session(participant: str, existing: list[dict], args, lx) -> int:
+    from ..errors import SessionError
+    from ..session import check_session
+
+    where = Path(args.data) / lx.experiment.name / f"sub-{participant}"
+    unfinished = [x for x in existing if x["status"] != "completed"]
+    if existing:
+        out(f"Sessions of participant {participant} already in {where}:")
+        for x in existing:
+            out(f"  {describe_session(x)}")
+    else:
+        out(f"Participant {participant} has no sessions yet in {where.parent}.")
+    if args.resume:
+        if not unfinished:
+            raise SessionError(f"participant {participant} has no unfinished session in "
+                               f"{where.parent} to resume (--resume)")
+        default, prompt = unfinished[-1]["session"], "Session to resume"
+    else:
+        default = max((x["session"] for x in existing), default=0) + 1
+        prompt = "Session"
+        if existing and existing[-1]["status"] != "completed":
+            last = existing[-1]["session"]
+            out(f"Session {last} did not finish. To continue it, stop here (Ctrl-C) and run "
+                f"'vtexp run {args.file} --participant {participant} --session {last} "
+                "--resume'.")
+    while True:
+        try:
+            answer = input(f"{prompt} [{default}]: ").strip()
+        except (EOFError, OSError):     # input ended, or the terminal went away
+            raise InputError("missing: no session number was given", key="--session") from None
+        try:
+            session = check_session(int(answer) if answer else default)
+        except ValueError:
+            print(f"  {answer!r} is not a whole number", flush=True)
+            continue
+        except InputError as e:
+            print(f"  {e.message}", flush=True)
+            continue
+        known = next((x for x in existing if x["session"] == session), None)
+        if args.resume and known not in unfinished:
+            print(f"  session {session} is not an unfinished session of participant "
+                  f"{participant}; sessions to resume: "
+                  + ", ".join(str(x["session"]) for x in unfinished), flush=True)
+        elif not args.resume and known is not None:
+            print(f"  session {session} already exists ({status_of(known)}); choose another "
+                  "number, or stop (Ctrl-C) and continue it with --resume", flush=True)
+        else:
+            return session
+
+
+def ask_experimenter(error, trial) -> str:
+    """The session pauses on a device fault until the experimenter chooses what to do."""
+    print(f"\nThe device failed during trial {trial.number} ({trial.condition.label}):\n"
+          f"  {error}\nEvery actuator is off. The session is paused.", file=sys.stderr)
+    while True:
+        try:
+            answer = input("[r]etry the trial (reconnect first), [s]kip it, or [a]bort the "
+                           "session? ").strip().lower()
+        except (EOFError, OSError):     # input ended, or the terminal went away
+            return "abort"
+        for choice in ("retry", "skip", "abort"):
+            if answer in (choice, choice[0]):
+                return choice
