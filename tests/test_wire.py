@@ -104,6 +104,32 @@ def test_stream_vectors_resynchronise(case):
     assert len(r._buf) == case["pending_bytes"]
 
 
+# v1's vectors as first published (SHA-256 of each, JSON with sorted keys, first 16 hex
+# digits): they never change; clarifications of the document only add vectors.
+FROZEN = {
+    ("conversations", "handshake_play_and_onsets"): "ba4e60b50d2a8ed6",
+    ("conversations", "retry_is_not_executed_twice"): "3a7faffb5de515dc",
+    ("conversations", "garbage_and_corruption_change_nothing"): "3814254ddb6ba99e",
+    ("conversations", "refusals"): "a3b8fdbb39c77a35",
+    ("conversations", "watchdog"): "1070923445ff9f61",
+    ("conversations", "bye"): "15b18ddaad645fe0",
+    ("cobs", None): "d6c7f8ce19da9135",
+    ("frames", None): "46ff611cb4a38fe2",
+    ("bad_frames", None): "0649bfa2b23b9f99",
+    ("streams", None): "2e14625d3c047e0e",
+}
+
+
+@pytest.mark.parametrize("where", FROZEN, ids=lambda w: w[1] or w[0])
+def test_published_vectors_never_change(where):
+    import hashlib
+    section, name = where
+    item = VECTORS[section] if name is None else next(
+        c for c in VECTORS[section] if c["name"] == name)
+    digest = hashlib.sha256(json.dumps(item, sort_keys=True).encode()).hexdigest()[:16]
+    assert digest == FROZEN[where]
+
+
 def test_the_vectors_file_is_what_the_generator_writes(tmp_path):
     out = tmp_path / "v.json"
     subprocess.run([sys.executable, str(ROOT / "protocols" / "wire" / "make_vectors.py"),

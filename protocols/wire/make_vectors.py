@@ -230,6 +230,209 @@ def conversations() -> list[dict]:
         (500_000, None),                          # long silence: no watchdog alarm
         (501_000, e(Heartbeat(), 3)),             # NO_SESSION until the next HELLO
     ], "a host that says BYE leaves the device off and idle, without a watchdog alarm")
+
+    # -- Added with the normative edition of docs/protocol.md: one conversation per point a
+    # firmware author had to guess. The conversations above are unchanged.
+    def raw_frame(version: int, mtype: int, seq: int, payload: bytes = b"") -> bytes:
+        body = bytes([version, mtype, seq]) + payload
+        return b"\x00" + wire.cobs_encode(body + wire.CRC.pack(wire.crc32(body))) + b"\x00"
+
+    def upload(pid: int, pulses: list[WirePulse], seq: int, drive: int = 1,
+               per: int = 64) -> list[bytes]:
+        frames = [e(UploadBegin(pid, len(pulses), drive), seq)]
+        for k in range(0, len(pulses), per):
+            seq += 1
+            frames.append(e(UploadChunk(pid, k, drive, tuple(pulses[k:k + per])), seq))
+        return frames
+
+    run("unreadable_frames_are_naked_and_feed_no_watchdog", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (50_000, raw_frame(2, Heartbeat.TYPE, 1)),                 # another version
+        (100_000, raw_frame(1, 0x7E, 5)),                          # unknown type
+        (150_000, raw_frame(1, Hello.TYPE, 6, bytes([1, 200]))),   # payload too short
+        (180_000, raw_frame(1, Ack.TYPE, 7, bytes(9))),            # a reply sent to the device
+        (201_000, None),                                           # 200 ms after HELLO: not yet
+        (201_001, None),                                           # the watchdog fires
+        (202_000, e(Status(), 8)),
+    ], "a frame the device cannot act on (other version: ack_seq 0; unknown or reply type; "
+       "malformed payload: ack_seq = its seq) is counted in rx_bad and NAKed, never executed, "
+       "and does not feed the watchdog")
+    small = FirmwareConfig.for_profile(DeviceProfile.load("vest_6x8"), max_payload=63)
+    run("longest_frame", small, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (2000, e(SetFrame(1, tuple((i, Level(1)) for i in range(20))), 1)),   # payload 63
+        (3000, e(SetFrame(1, tuple((i, Level(0)) for i in range(21))), 2)),   # payload 66
+        (4000, e(Status(), 3)),
+    ], "a frame whose payload exceeds max_payload is unreadable: NAK BAD_FRAME, ack_seq 0")
+    run("device_sequence_runs_on_across_sessions", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (2000, e(Heartbeat(), 1)),
+        (3000, e(Hello(1, 200, 200), 0)),
+        (4000, e(Heartbeat(), 1)),
+    ], "the device numbers its frames from 0 at power-on and never restarts: a new HELLO "
+       "does not reset its sequence")
+    long_pulse = [WirePulse(2, 0, 1_000_000, Level(2))]
+    run("hello_bye_and_all_off_during_a_play", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(1, long_pulse, 1))],
+        (3000, e(Trigger(1, 0), 3)),
+        (100_000, e(Hello(1, 200, 200), 4)),                       # reply, then PLAY_DONE 1
+        *[(101_000 + k, f) for k, f in enumerate(upload(2, long_pulse, 5))],
+        (102_000, e(Trigger(2, 0), 7)),
+        (150_000, e(AllOff(), 8)),                                 # ACK, then PLAY_DONE 1
+        (151_000, e(Trigger(2, 0), 9)),                            # the schedule stays loaded
+        (200_000, e(Bye(), 10)),                                   # ACK, then PLAY_DONE 1
+        (201_000, e(Heartbeat(), 11)),
+    ], "HELLO, ALL_OFF and BYE each stop a play: their reply first, then PLAY_DONE reason 1")
+    two = [WirePulse(0, 0, 200_000, Level(1)), WirePulse(1, 100_000, 200_000, Level(2))]
+    run("busy_during_a_play", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(3, two, 1))],
+        (3000, e(Trigger(3, 0), 3)),
+        (10_000, e(SetFrame(1, ((5, Level(1)),)), 4)),
+        (20_000, e(SetFrameFull(1, tuple(Level(0) for _ in range(48))), 5)),
+        (30_000, e(UploadBegin(4, 1, 1), 6)),
+        (40_000, e(UploadChunk(3, 0, 1, (WirePulse(0, 0, 1000, Level(1)),)), 7)),
+        (50_000, e(Trigger(3, 0), 8)),
+        (60_000, e(Heartbeat(), 9)),
+        (70_000, e(Status(), 10)),
+        (80_000, e(GetOnsets(3, 0, 2), 11)),
+        (103_000, None),
+        (150_000, e(Status(), 12)),
+        (303_000, None),
+        (304_000, e(Status(), 13)),
+    ], "while a play is in progress (armed or playing) SET_FRAME, SET_FRAME_FULL, "
+       "UPLOAD_BEGIN and TRIGGER are refused BUSY (detail = the play); UPLOAD_CHUNK finds no "
+       "upload; HEARTBEAT, STATUS, GET_ONSETS, ALL_OFF, HELLO and BYE are served")
+    one = [WirePulse(4, 0, 50_000, Level(2))]
+    run("one_schedule_slot", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(1, one, 1))],
+        (3000, e(UploadBegin(2, 1, 1), 3)),                        # forgets schedule 1
+        (4000, e(Trigger(1, 0), 4)),
+        (5000, e(Trigger(2, 0), 5)),                               # not complete yet
+        (6000, e(UploadChunk(2, 0, 1, tuple(one)), 6)),
+        (7000, e(Trigger(2, 0), 7)),
+    ], "the device holds one schedule: UPLOAD_BEGIN forgets the previous one, complete or "
+       "not; only a complete upload can be triggered")
+    run("upload_refusals", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (2000, e(UploadBegin(3, 3, 1), 1)),
+        (3000, e(UploadChunk(4, 0, 1, (WirePulse(0, 0, 1000, Level(1)),)), 2)),
+        (4000, e(UploadChunk(3, 0, 2, (WirePulse(0, 0, 1000, Train(1000, 4000, 1000)),)), 3)),
+        (5000, e(UploadChunk(3, 0, 1, tuple(WirePulse(i, 0, 1000, Level(1))
+                                             for i in range(4))), 4)),
+        (6000, e(UploadChunk(3, 0, 1, (WirePulse(7, 0, 0, Level(1)),)), 5)),
+        (7000, e(UploadChunk(3, 0, 1, (WirePulse(9, 0xFFFF_0000, 0x10000, Level(1)),)), 6)),
+        (8000, e(UploadChunk(3, 0, 1, (WirePulse(0, 5000, 1000, Level(1)),)), 7)),
+        (9000, e(UploadChunk(3, 2, 1, (WirePulse(1, 6000, 1000, Level(1)),)), 8)),
+        (10_000, e(UploadChunk(3, 1, 1, (WirePulse(1, 1000, 1000, Level(1)),)), 9)),
+        (11_000, e(UploadChunk(3, 1, 1, (WirePulse(1, 5000, 1000, Level(1)),
+                                         WirePulse(2, 9000, 1000, Level(2)))), 10)),
+        (12_000, e(UploadChunk(3, 3, 1, (WirePulse(1, 9000, 1000, Level(1)),)), 11)),
+        (13_000, e(UploadBegin(5, 4097, 1), 12)),
+    ], "refusals of an upload, checked in this order: NO_SCHEDULE (other play_id), "
+       "WRONG_DRIVE, OUT_OF_ORDER (first is not the count received; detail = expected), "
+       "TOO_LARGE (more than announced), then per pulse OUT_OF_RANGE (actuator, setting, "
+       "duration 0, or an end past 2^32-1 us; detail = actuator) and OUT_OF_ORDER (onset "
+       "before the previous one, across chunks; detail = pulse number). A refused chunk "
+       "leaves the upload as it was; a complete upload takes no more chunks")
+    late = [WirePulse(0, 0, 10_000, Level(1))]
+    run("trigger_times", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(6, late, 1))],
+        (5000, e(Trigger(6, 4000), 3)),                            # in the past: at once
+        (15_000, None),
+        (20_000, e(Trigger(6, 50_000), 4)),                        # in the future: armed
+        (30_000, e(Status(), 5)),
+        (50_000, None),
+        (60_000, None),
+    ], "TRIGGER at a time already past starts at once; at a future time the play is armed "
+       "until then; the ACK carries the start")
+    overlap = [WirePulse(0, 0, 100_000, Level(1)), WirePulse(0, 50_000, 100_000, Level(2)),
+               WirePulse(5, 60_000, 10_000, Level(1))]
+    run("overlap_and_a_late_tick", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(7, overlap, 1))],
+        (3000, e(Trigger(7, 0), 3)),
+        (73_000, e(Heartbeat(), 4)),          # late: the onsets due at 53000 and 63000 and
+                                              # the offset at 73000 are applied together
+        (103_000, None),                      # pulse 0 ends: actuator 0 stays on (pulse 1)
+        (153_000, None),
+        (154_000, e(GetOnsets(7, 0, 3), 5)),
+    ], "where pulses overlap on an actuator the latest started drives it; instants found "
+       "due together are applied together and reported in one ONSET with the time the "
+       "outputs changed")
+    run("an_empty_schedule_finishes", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (2000, e(UploadBegin(8, 0, 1), 1)),
+        (3000, e(Trigger(8, 0), 2)),                               # ACK, then PLAY_DONE
+        (4000, e(SetFrame(1, ((1, Level(1)),)), 3)),
+        (5000, e(Trigger(8, 20_000), 4)),
+        (10_000, e(Status(), 5)),
+        (20_000, None),
+        (21_000, e(Status(), 6)),
+    ], "a schedule of no pulses finishes at its start: PLAY_DONE with 0 onsets, and the "
+       "device is idle again")
+    run("watchdog_limits", vest, [
+        (1000, e(Hello(1, 0, 0), 0)),                              # clamped up to 20 ms
+        (21_000, None),
+        (21_001, None),
+        (30_000, e(Hello(1, 60_000, 60_000), 1)),                  # clamped down to 10 s
+    ], "heartbeat and watchdog periods are clamped to the device's limits (20-10000 ms "
+       "here): 0 never disables the watchdog")
+    once = [WirePulse(3, 0, 5_000, Level(1))]
+    run("a_resend_after_another_request_is_a_new_request", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(9, once, 1))],
+        (3000, e(Trigger(9, 0), 3)),
+        (8000, None),
+        (9000, e(GetOnsets(9, 0, 1), 4)),
+        (10_000, e(GetOnsets(9, 0, 1), 4)),                        # retry: the cached reply
+        (11_000, e(Heartbeat(), 5)),
+        (12_000, e(Trigger(9, 0), 3)),                             # old bytes: played again
+        (17_000, None),
+    ], "the reply cache holds the last request only: a resend is recognised only before "
+       "any other request, so a host MUST resend its request in flight before anything "
+       "else; the same bytes sent later are a new request and are executed")
+    tiny = FirmwareConfig.for_profile(DeviceProfile.load("vest_6x8"), max_payload=45)
+    eight = [WirePulse(i, i * 1000, 500, Level(1)) for i in range(8)]
+    run("get_onsets_limits", tiny, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(10, eight, 1, per=3))],
+        (3000, e(Trigger(10, 0), 5)),
+        *[(3000 + i * 1000, None) for i in range(1, 8)],
+        (10_500, None),
+        (11_000, e(GetOnsets(10, 0, 8), 6)),                       # (45 - 5) // 8 = 5 times
+        (12_000, e(GetOnsets(10, 5, 8), 7)),                       # the other 3
+        (13_000, e(GetOnsets(10, 8, 1), 8)),                       # past the end: none
+        (14_000, e(GetOnsets(11, 0, 1), 9)),                       # another play
+        (15_000, e(Hello(1, 200, 200), 10)),
+        (16_000, e(GetOnsets(10, 0, 1), 11)),                      # forgotten with the session
+    ], "GET_ONSETS answers at most (max_payload - 5) / 8 times, from the first asked, and "
+       "none past the end; onsets are kept for the play in progress or the last one, until "
+       "the next TRIGGER or HELLO")
+    run("frame_details", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (2000, e(SetFrame(1, ((2, Level(1)), (2, Level(2)))), 1)),   # the last one counts
+        (3000, e(SetFrame(1, ()), 2)),                                # nothing to change
+        (4000, e(SetFrameFull(1, tuple(Level(0) for _ in range(47))), 3)),
+        (5000, raw_frame(1, SetFrame.TYPE, 4, bytes([3, 1, 0, 0, 0, 1]))),  # drive kind 3
+    ], "a frame's changes apply in order (a repeated actuator takes its last setting); an "
+       "empty SET_FRAME is acknowledged; SET_FRAME_FULL needs exactly one setting per "
+       "actuator (BAD_PAYLOAD, detail = actuators); an unknown drive kind is a malformed "
+       "payload")
+    sma = FirmwareConfig.for_profile(DeviceProfile.load("sma_5x5"))
+    run("pulse_train_limits", sma, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (2000, e(SetFrame(2, ((0, Train(2000, 5000, 1500)),)), 1)),   # 1.5 ms at 50 Hz
+        (3000, e(SetFrame(2, ((1, Train(2000, 0, 1000)),)), 2)),      # no frequency
+        (4000, e(SetFrame(2, ((2, Train(2000, 4000, 0)),)), 3)),      # no width
+        (5000, e(SetFrame(2, ((3, Train(2001, 4000, 1000)),)), 4)),   # beyond the amplitude
+        (6000, e(SetFrame(2, ((0, Train(0, 0, 0)), (4, Train(0, 9999, 9999)))), 5)),  # off
+    ], "a train is within the hardware if amplitude, frequency and width are within the "
+       "ceilings, frequency and width are not 0, and a pulse is shorter than its period "
+       "(width_us * frequency_chz < 10^8); amplitude 0 is off, whatever the rest")
     return out
 
 

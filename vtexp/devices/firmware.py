@@ -145,7 +145,10 @@ class Playback:
         return sum(1 for t in self.onsets if t != wire.NOT_PLAYED)
 
     def next_due_us(self) -> int | None:
-        return self.start_us + self.events[self.pos][0] if self.pos < len(self.events) else None
+        if self.pos < len(self.events):
+            return self.start_us + self.events[self.pos][0]
+        # A schedule of no pulses is due once, at its start, to finish.
+        return self.start_us if not self.events else None
 
 
 @dataclass
@@ -197,9 +200,13 @@ class Firmware:
                 out.append(self._nak_for(item))
                 continue
             seq, msg = item
+            if not msg.REQUEST:            # a reply or an event sent to the device
+                self.counters.rx_bad += 1
+                out.append(self._send(self._nak(seq, NakReason.UNKNOWN_TYPE, msg.TYPE)))
+                continue
             self.counters.rx_frames += 1
             if self.session:
-                self.last_rx_us = self.clock_us()      # any valid frame feeds the watchdog
+                self.last_rx_us = self.clock_us()      # any valid request feeds the watchdog
             out.extend(self._request(seq, msg))
         out.extend(self.tick())
         return out
@@ -260,8 +267,6 @@ class Firmware:
 
     # -- requests ---------------------------------------------------------------------------
     def _request(self, seq: int, msg: Message) -> list[bytes]:
-        if not msg.REQUEST:
-            return [self._send(self._nak(seq, NakReason.UNKNOWN_TYPE, msg.TYPE))]
         key = wire.frame_body(msg, seq)
         if key == self._last_request and not isinstance(msg, Hello):
             # A retry of what was already done: answer again, do not act again.
@@ -316,6 +321,7 @@ class Firmware:
         self.session = True
         self.last_rx_us = self.clock_us()
         self._upload = self._uploaded = None
+        self.last_play = None                  # its onsets are forgotten with the session
         c = self.cfg
         return HelloReply(seq, min(msg.protocol, wire.PROTOCOL_VERSION), self.heartbeat_ms,
                           self.watchdog_ms, c.rows, c.cols, c.actuator, c.drive, c.max_level,
@@ -379,7 +385,8 @@ class Firmware:
             return self._nak(seq, NakReason.TOO_LARGE, self._upload_n)
         prev = up[-1].onset_us if up else 0
         for k, p in enumerate(msg.pulses):
-            if p.index >= self.n or not self._check_setting(p.setting) or p.duration_us == 0:
+            if (p.index >= self.n or not self._check_setting(p.setting) or p.duration_us == 0
+                    or p.onset_us + p.duration_us > 0xFFFF_FFFF):
                 return self._nak(seq, NakReason.OUT_OF_RANGE, p.index)
             if p.onset_us < prev:
                 return self._nak(seq, NakReason.OUT_OF_ORDER, msg.first + k)
@@ -400,7 +407,7 @@ class Firmware:
         # not make the first onset late.
         now = self.clock_us()
         pb.start_us = max(now, msg.at_us) if msg.at_us else now
-        self.play = pb
+        self.play, self.last_play = pb, None    # one play's onsets are kept: this one's
         return Ack(seq, pb.start_us)
 
     def _get_onsets(self, seq: int, msg: GetOnsets) -> Message:

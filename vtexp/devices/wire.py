@@ -56,6 +56,10 @@ class CrcError(WireError):
     kind = "bad_crc"
 
 
+class TooLongError(WireError):
+    kind = "too_long"
+
+
 class VersionError(WireError):
     kind = "bad_version"
 
@@ -790,12 +794,17 @@ def encode(msg: Message, seq: int) -> bytes:
     return DELIMITER + cobs_encode(frame_body(msg, seq)) + DELIMITER
 
 
-def decode_frame(encoded: bytes) -> tuple[int, Message]:
+def decode_frame(encoded: bytes, max_len: int = MAX_FRAME) -> tuple[int, Message]:
     """Decode the bytes between two delimiters into ``(seq, message)``.
 
-    Raises a :class:`WireError` subclass that says what was wrong.
+    ``max_len`` is the longest decoded frame the receiver takes (header, payload and
+    CRC: the maximum payload + 7). Raises a :class:`WireError` subclass that says
+    what was wrong.
     """
     raw = cobs_decode(encoded)
+    if len(raw) > max_len:
+        raise TooLongError(f"frame of {len(raw)} bytes is longer than the {max_len}-byte "
+                           "maximum (payload + 7)")
     if len(raw) < MIN_FRAME:
         raise WireError(f"frame of {len(raw)} bytes is shorter than the {MIN_FRAME}-byte minimum")
     body, (crc,) = raw[:-CRC.size], CRC.unpack(raw[-CRC.size:])
@@ -839,11 +848,14 @@ class FrameReader:
     Feed it whatever the port returned; it yields ``(seq, message)`` tuples
     for good frames and :class:`WireError` instances for bad ones (garbage,
     a CRC mismatch, a frame cut short by a lost byte). Empty frames (two
-    delimiters in a row, as every frame starts with one) are skipped. A run
-    of more than :data:`MAX_FRAME` bytes without a delimiter is dropped.
+    delimiters in a row, as every frame starts with one) are skipped. A frame
+    that decodes to more than ``max_frame`` bytes (header + payload + CRC) is
+    refused, and a run of bytes without a delimiter longer than such a frame can
+    be once encoded is dropped without being held.
     """
 
     def __init__(self, max_frame: int = MAX_FRAME):
+        self.max_frame = max_frame
         self._buf = bytearray()
         self._overflow = False
         self.max_encoded = max_frame + max_frame // 254 + 2
@@ -869,7 +881,7 @@ class FrameReader:
                 self._overflow = False
             elif self._buf:
                 try:
-                    out.append(decode_frame(bytes(self._buf)))
+                    out.append(decode_frame(bytes(self._buf), self.max_frame))
                     self.stats.frames += 1
                 except WireError as e:
                     out.append(self._error(e))
