@@ -1,0 +1,58 @@
+/* What the AVR port's files share: the tick clock, the UART and the outputs. */
+#ifndef VT_AVR_PORT_H
+#define VT_AVR_PORT_H
+
+#include <stdint.h>
+
+#include "vt_profile.h"
+
+/* ---- clock (clock.c): Timer1, CTC, 0.5 us counts; a tick every VT_TICK_US */
+extern volatile uint32_t vt_ticks;
+extern volatile uint32_t vt_tick_us_lo, vt_tick_us_hi;  /* the time of tick vt_ticks, us */
+/* Set by the tick interrupt when the core has something to see (a set applied, the
+ * watchdog fired): the main loop then calls vt_poll() at once. */
+extern volatile uint8_t vt_out_event;
+void vt_clock_init(uint16_t tick_us);
+/* The first tick at or after t; the time of tick k (both near now). */
+uint32_t vt_clock_tick_for(uint64_t t_us);
+uint64_t vt_clock_tick_time(uint32_t k);
+/* Called by the tick interrupt first: one more tick. */
+#ifndef VT_RUNNER
+static inline uint32_t vt_clock_tick(void)
+{
+    uint32_t lo = vt_tick_us_lo + VT_TICK_US;
+    vt_tick_us_lo = lo;
+    if (lo < VT_TICK_US)
+        vt_tick_us_hi++;
+    return ++vt_ticks;
+}
+
+/* In the tick interrupt, after vt_clock_tick(): the time at which Timer1 read c. */
+static inline uint64_t vt_clock_now_at(uint16_t c)
+{
+    return (((uint64_t)vt_tick_us_hi << 32) | vt_tick_us_lo) + (c >> 1);
+}
+#endif
+
+/* ---- UART0 at 1 Mbaud (uart.c): interrupt-driven rings */
+void vt_uart_init(void);
+uint8_t vt_uart_available(void);
+uint8_t vt_uart_get(void);
+/* Queue a byte to send; waits while the transmit ring is full. */
+void vt_uart_put(uint8_t byte);
+/* bytes that arrived while the receive ring was full (a host that does not wait) */
+extern volatile uint16_t vt_uart_overruns;
+
+/* ---- outputs (out_levels.c or out_trains.c) */
+/* Every output off, ports set up: the first thing after reset (also from .init3). */
+void vt_out_safe(void);
+void vt_out_init(void);
+/* Called first thing by the tick interrupt: latch the outputs prepared at the last
+ * tick. Then the port's own work, with interrupts enabled again. */
+void vt_out_tick(void);
+
+/* ---- the watchdog deadline (main.c), checked by the tick interrupt */
+extern volatile uint8_t vt_deadline_armed;
+extern volatile uint32_t vt_deadline_tick;
+
+#endif

@@ -1,0 +1,390 @@
+/* Pulse trains (SMA pins, seed 002): a logic-level MOSFET gate per pin, on whole
+ * ports, and the pulse amplitude from daisy-chained LTC2656 octal DACs.
+ *
+ * A 10 kHz tick (100 us) carries the edges: a train set at T0 rises at
+ * T0 + floor(k * 10^8 / f) us (f in 0.01 Hz) and falls width_us later, each edge at
+ * the first tick at or after its time (docs/protocol.md, "What a pulse train is").
+ * The period is kept as quotient and remainder so that no rounding accumulates.
+ * Like the level drive's latch, the interrupt writes first the port values it
+ * prepared at the previous tick (so every edge of a tick happens in one instant: 4
+ * port writes, 0.25 us), then prepares the next tick, touching the pins only at
+ * their edges.
+ *
+ * Amplitude: each pin's gate MOSFET switches the output of its own linear stage,
+ * set by one DAC channel (pin i: chip i / 8, channel i % 8; full scale =
+ * VT_FULL_SCALE_MV at the pin). A channel is written when its amplitude changes:
+ * ahead of the commit if the pin is idle, or at the tick before it if a train still
+ * runs on it (its last 100 us may then carry the new amplitude).
+ *
+ * LTC2656 word (32 bits for a daisy chain): 8 don't-care bits, command C3-C0,
+ * address A3-A0, 12-bit code, 4 don't-care bits; command 0011 writes and updates
+ * channel n, 1111 does nothing; the farthest chip's word is shifted first; CS/LD
+ * rising executes them (LTC2656 datasheet, "Operation", Table 1).
+ */
+#include "vt_profile.h"
+
+#if VT_DRIVE == VT_DRIVE_TRAIN
+
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <string.h>
+
+#include "avr_port.h"
+#include "board.h"
+#include "vt_hal.h"
+
+#define N VT_MAX_ACTUATORS
+#define DAC_WRITE 0x3
+#define DAC_NOP 0xF
+
+typedef struct {
+    uint32_t edge;           /* time of the next edge, us (wrapping; compared by difference) */
+    uint32_t rise;           /* the current pulse's rise */
+    uint32_t q;              /* period: q + r / f us */
+    uint16_t r, f, acc, w;
+    uint8_t on, high;
+} pin_t;
+
+typedef struct {
+    vt_setting s;
+    uint32_t q;              /* 10^8 / f and its remainder, divided out of the interrupt */
+    uint16_t r;
+} staged_t;
+
+static pin_t pins[N];
+static staged_t staged[N];
+static uint32_t staged_mask;
+static uint8_t staged_list[N], n_staged;     /* pins in the set being staged */
+static uint8_t act[N], n_act;                 /* pins with a train, for the tick to visit */
+static uint8_t g_now[4];                      /* gates as the tick has prepared them */
+static uint16_t dac_code[N];          /* what each channel holds */
+static uint16_t dac_want[N];          /* what the committed set needs */
+
+static volatile uint8_t out_a, out_c, out_l, out_g;   /* gates for the next tick */
+static volatile uint32_t next_edge;   /* earliest edge of any pin, us */
+static volatile uint8_t any_on;
+
+enum { NONE, SCHEDULED, DONE };
+static volatile uint8_t commit_state, commit_onsets, pre_commit, pre_sync;
+static volatile uint32_t commit_tick;
+static volatile uint64_t commit_t;
+static volatile uint32_t busy_dac;    /* ... whose DAC channel must wait for the tick */
+static volatile uint8_t preparing;   /* the tick interrupt is preparing the next tick */
+
+_Static_assert(sizeof pins + sizeof staged + sizeof dac_code + sizeof dac_want
+                   <= VT_PORT_RAM_BYTES - 256 - 128 - 64,
+               "profile " VT_PROFILE_NAME ": the train state exceeds the port's RAM budget");
+
+static void gates(uint8_t a, uint8_t c, uint8_t l, uint8_t g)
+{
+    PORTA = a;
+    PORTC = c;
+    PORTL = l;
+    PORTG = (uint8_t)((PORTG & ~1) | (g & 1));
+}
+
+void vt_out_safe(void)
+{
+    gates(0, 0, 0, 0);
+    DDRA = 0xFF;
+    DDRC = 0xFF;
+    DDRL = 0xFF;
+    DDRG |= 1;
+}
+
+static void dac_words(const int8_t *channel, const uint16_t *code)
+{
+    /* one word per chip, the farthest first */
+    for (int8_t chip = VT_DAC_CHIPS - 1; chip >= 0; chip--) {
+        uint8_t cmd = channel[chip] < 0 ? DAC_NOP : DAC_WRITE;
+        uint8_t addr = channel[chip] < 0 ? 0 : (uint8_t)channel[chip];
+        uint16_t v = channel[chip] < 0 ? 0 : (uint16_t)(code[chip] << 4);
+        uint8_t w[4] = {0, (uint8_t)(cmd << 4 | addr), (uint8_t)(v >> 8), (uint8_t)v};
+        for (uint8_t i = 0; i < 4; i++) {
+            SPDR = w[i];
+            while (!(SPSR & _BV(SPIF)))
+                ;
+        }
+    }
+    LATCH_PORT |= _BV(LATCH_BIT);             /* CS/LD rising: the chips execute */
+}
+
+/* Write the channels of the pins in mask whose code differs from what they hold. */
+static void dac_update(uint32_t mask)
+{
+    for (;;) {
+        int8_t channel[VT_DAC_CHIPS];
+        uint16_t code[VT_DAC_CHIPS];
+        uint8_t any = 0;
+        for (uint8_t c = 0; c < VT_DAC_CHIPS; c++)
+            channel[c] = -1;
+        uint32_t bit = 1;
+        for (uint8_t i = 0; i < N; i++, bit <<= 1) {
+            uint8_t chip = (uint8_t)(i >> 3);
+            if (!(mask & bit) || dac_code[i] == dac_want[i] || channel[chip] >= 0)
+                continue;
+            channel[chip] = (int8_t)(i & 7);
+            code[chip] = dac_want[i];
+            dac_code[i] = dac_want[i];
+            any = 1;
+        }
+        if (!any)
+            return;
+        LATCH_PORT &= (uint8_t)~_BV(LATCH_BIT);
+        dac_words(channel, code);
+    }
+}
+
+void vt_out_init(void)
+{
+    vt_out_safe();
+    LATCH_PORT |= _BV(LATCH_BIT);             /* CS/LD idles high */
+    SYNC_PORT &= (uint8_t)~_BV(SYNC_BIT);
+    DDRB |= _BV(LATCH_BIT) | _BV(SYNC_BIT) | _BV(SPI_SS) | _BV(SPI_SCK) | _BV(SPI_MOSI);
+    SPCR = _BV(SPE) | _BV(MSTR);              /* mode 0, MSB first */
+    SPSR = _BV(SPI2X);
+    memset(pins, 0, sizeof pins);
+    for (uint8_t i = 0; i < N; i++) {
+        dac_code[i] = 0xFFFF;                 /* unknown: every channel is written once */
+        dac_want[i] = 0;
+    }
+    dac_update(0xFFFFFFFFUL);
+}
+
+static uint16_t code_of(uint16_t mv)
+{
+    uint32_t c = ((uint32_t)mv * 4095u + VT_FULL_SCALE_MV / 2) / VT_FULL_SCALE_MV;
+    return c > 4095 ? 4095 : (uint16_t)c;
+}
+
+static void start_train(pin_t *p, const staged_t *st, uint32_t t0)
+{
+    const vt_setting *s = &st->s;
+    p->on = 1;
+    p->high = 0;
+    p->q = st->q;
+    p->r = st->r;
+    p->f = s->f;
+    p->acc = 0;
+    p->w = s->w;
+    p->rise = t0;
+    p->edge = t0;                             /* the first pulse rises at once */
+}
+
+/* Advance the pins whose edge is due by time t: the gates for that tick and the next edge.
+ * Only pins with a train are visited, so a tick costs what is on, not the array. */
+static void advance(uint32_t t)
+{
+    uint32_t soonest = t + 0x7FFFFFFFUL;
+    for (uint8_t k = 0; k < n_act; k++) {
+        uint8_t i = act[k];
+        pin_t *p = &pins[i];
+        if ((int32_t)(p->edge - t) <= 0) {
+            uint8_t m = (uint8_t)(1 << (i & 7));
+            if (p->high) {                    /* fall; the next pulse rises a period later */
+                p->high = 0;
+                g_now[i >> 3] &= (uint8_t)~m;
+                p->rise += p->q;
+                p->acc += p->r;
+                if (p->acc >= p->f) {
+                    p->acc -= p->f;
+                    p->rise++;
+                }
+                p->edge = p->rise;
+            } else {
+                p->high = 1;
+                g_now[i >> 3] |= m;
+                p->edge = p->rise + p->w;
+            }
+        }
+        if ((int32_t)(p->edge - soonest) < 0)
+            soonest = p->edge;
+    }
+    out_a = g_now[0];
+    out_c = g_now[1];
+    out_l = g_now[2];
+    out_g = g_now[3];
+    next_edge = soonest;
+    any_on = n_act != 0;
+}
+
+static void pin_off(uint8_t i)
+{
+    if (!pins[i].on)
+        return;
+    pins[i].on = pins[i].high = 0;
+    g_now[i >> 3] &= (uint8_t)~(1 << (i & 7));
+    for (uint8_t k = 0; k < n_act; k++)
+        if (act[k] == i) {
+            act[k] = act[--n_act];
+            break;
+        }
+}
+
+static void all_pins_off(void)
+{
+    for (uint8_t i = 0; i < N; i++)
+        pins[i].on = pins[i].high = 0;
+    n_act = 0;
+    g_now[0] = g_now[1] = g_now[2] = g_now[3] = 0;
+    out_a = out_c = out_l = out_g = 0;
+    any_on = 0;
+}
+
+void vt_out_tick(void)
+{
+    uint8_t pb = PORTB & (uint8_t)~_BV(SYNC_BIT);
+    if (pre_sync)
+        pb |= _BV(SYNC_BIT);
+    gates(out_a, out_c, out_l, out_g);        /* the edges of this tick, in one instant */
+    uint16_t c = TCNT1;                       /* when, in 0.5 us counts after the tick */
+    PORTB = pb;
+    uint32_t k = vt_clock_tick();
+    if (pre_commit) {
+        pre_commit = 0;
+        commit_t = vt_clock_now_at(c);
+        commit_state = DONE;
+        vt_out_event = 1;
+    }
+    if (vt_deadline_armed && (int32_t)(k - vt_deadline_tick) >= 0) {
+        gates(0, 0, 0, 0);                    /* the host is gone: every pin off now */
+        vt_deadline_armed = 0;
+        vt_out_event = 1;
+        all_pins_off();
+    }
+    if (preparing)
+        return;                               /* the previous tick is still preparing */
+    preparing = 1;
+    sei();
+    /* The next tick: a committed set starts there, and edges due by then happen there. */
+    uint32_t t_next = vt_tick_us_lo + VT_TICK_US;             /* us, wrapping */
+    uint8_t commit = commit_state == SCHEDULED && commit_tick == k + 1;
+    if (commit) {
+        if (busy_dac)
+            dac_update(busy_dac);             /* channels of trains still running */
+        for (uint8_t k = 0; k < n_staged; k++) {
+            uint8_t i = staged_list[k];
+            if (!staged[i].s.a) {
+                pin_off(i);
+                continue;
+            }
+            if (!pins[i].on)
+                act[n_act++] = i;
+            start_train(&pins[i], &staged[i], t_next);
+        }
+        advance(t_next);
+    } else if (any_on && (int32_t)(next_edge - t_next) <= 0) {
+        advance(t_next);
+    }
+    cli();
+    pre_commit = commit;
+    pre_sync = commit && commit_onsets;
+    preparing = 0;
+}
+
+void vt_hal_stage_begin(void)
+{
+    staged_mask = 0;
+    n_staged = 0;
+}
+
+void vt_hal_stage(uint16_t index, const vt_setting *s)
+{
+    if (index >= N)
+        return;
+    staged_t *st = &staged[index];
+    st->s = *s;
+    if (s->a) {                               /* 32-bit divisions: here, not in the tick */
+        st->q = 100000000UL / s->f;
+        st->r = (uint16_t)(100000000UL % s->f);
+    }
+    if (!(staged_mask & (1UL << index)))
+        staged_list[n_staged++] = (uint8_t)index;
+    staged_mask |= 1UL << index;
+}
+
+/* The tick a set for time t goes out at: the first at or after t, and never before the
+ * tick after next (the next tick's outputs are already prepared). */
+static uint32_t commit_tick_for(uint64_t t_us)
+{
+    uint32_t k = vt_clock_tick_for(t_us);
+    uint8_t sreg = SREG;
+    cli();
+    uint32_t earliest = vt_ticks + 2;
+    SREG = sreg;
+    return (int32_t)(k - earliest) < 0 ? earliest : k;
+}
+
+uint64_t vt_hal_commit_time(uint64_t t_us) { return vt_clock_tick_time(commit_tick_for(t_us)); }
+
+void vt_hal_commit_at(uint64_t t_us, uint8_t onsets)
+{
+    uint32_t k = commit_tick_for(t_us);
+    /* amplitudes of pins that are idle now can be set at once, out of the tick */
+    uint32_t idle = 0, bit = 1;
+    for (uint8_t i = 0; i < N; i++, bit <<= 1) {
+        if (!(staged_mask & bit))
+            continue;
+        if (staged[i].s.a)
+            dac_want[i] = code_of(staged[i].s.a);
+        if (!pins[i].on)
+            idle |= bit;
+    }
+    dac_update(idle);
+    uint32_t busy = 0;
+    bit = 1;
+    for (uint8_t i = 0; i < N; i++, bit <<= 1)
+        if ((staged_mask & bit) && staged[i].s.a && dac_code[i] != dac_want[i])
+            busy |= bit;
+    cli();
+    busy_dac = busy;
+    if ((int32_t)(k - (vt_ticks + 2)) < 0)
+        k = vt_ticks + 2;
+    commit_tick = k;
+    commit_onsets = onsets;
+    commit_state = SCHEDULED;
+    sei();
+}
+
+uint8_t vt_hal_committed(uint64_t *t_us)
+{
+    uint8_t done = 0;
+    cli();
+    if (commit_state == DONE) {
+        *t_us = commit_t;
+        commit_state = NONE;
+        done = 1;
+    }
+    sei();
+    return done;
+}
+
+uint64_t vt_hal_commit_now(void)
+{
+    uint64_t t;
+    vt_hal_commit_at(0, 1);
+    while (!vt_hal_committed(&t))
+        ;                                     /* at most two ticks */
+    return t;
+}
+
+void vt_hal_all_off(void)
+{
+    cli();
+    gates(0, 0, 0, 0);                        /* off at once */
+    commit_state = NONE;
+    pre_commit = 0;
+    pre_sync = 0;
+    all_pins_off();
+    sei();
+}
+
+/* A play starts on a tick at least VT_START_LEAD_US away, so that its first instant,
+ * prepared after the trigger is answered, makes it. */
+uint64_t vt_hal_align_start(uint64_t t_us)
+{
+    uint64_t soonest = vt_hal_now_us() + VT_START_LEAD_US;
+    return vt_hal_commit_time(t_us > soonest ? t_us : soonest);
+}
+
+#endif
