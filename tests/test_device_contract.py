@@ -2,22 +2,28 @@
 
 The sim backend passes it in-process; the serial backend passes it against the
 emulator over a real pseudo-terminal (as ``serial:PORT``, and as the
-``emulator`` backend with device-side and host-streamed timing). "Driven"
-is what the device itself says it drove (the sim's record; the emulated
-firmware's output history), not what the host believes it sent.
+``emulator`` backend with device-side and host-streamed timing), and against the
+reference firmware in C: its host build on a pty, and its ATmega2560 build, the
+very .elf, in simavr. "Driven" is what the device itself drove (the sim's record;
+the emulated firmware's output history; the C firmware's record of its outputs;
+for the ATmega2560, its pins in the simulator's trace), not what the host believes
+it sent.
 """
 
 from __future__ import annotations
 
 import signal
+import tempfile
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
-from vtexp.devices import Device, open_device
+from vtexp.devices import Device, fwtrace, open_device
+from vtexp.devices.cfirmware import AvrSimulator, HostFirmware
 from vtexp.devices.emulator import PtyEmulator
 from vtexp.devices.serial_device import setting_of
 from vtexp.errors import UnsafeStimulus
@@ -73,10 +79,43 @@ def make_backend(name: str) -> Backend:
                 e.stop()
         return Backend(name, opener, lambda dev: _emu_driven(dev.test_emulator, dev.profile.cols),
                        lambda dev: dev.test_emulator.all_outputs_off(), cleanup)
+    if name in ("c-host", "c-avr"):
+        procs: list = []
+
+        def c_opener(prof, realtime=False):
+            if name == "c-host":
+                proc = HostFirmware(prof, trace=Path(tempfile.mkstemp(suffix=".jsonl")[1]))
+            else:
+                proc = AvrSimulator(prof.name)
+            procs.append(proc)
+            dev = open_device(f"serial:{proc.start()}", prof)
+            dev.test_firmware = proc
+            return dev
+
+        def c_driven(dev):
+            proc = dev.test_firmware
+            proc.command("flush")
+            got = (fwtrace.host_driven(proc.trace_path) if name == "c-host" else
+                   fwtrace.driven(fwtrace.Trace.load(proc.trace_path), dev.profile))
+            return [(i // dev.profile.cols, i % dev.profile.cols, s) for i, s in got]
+
+        def c_all_off(dev):
+            proc = dev.test_firmware
+            proc.command("flush")
+            n = dev.profile.rows * dev.profile.cols
+            if name == "c-host":
+                return fwtrace.host_all_off(proc.trace_path)
+            return fwtrace.all_off_at_end(fwtrace.Trace.load(proc.trace_path), n)
+
+        def c_cleanup():
+            for proc in procs:
+                proc.stop()
+        return Backend(name, c_opener, c_driven, c_all_off, c_cleanup)
     raise ValueError(name)
 
 
-@pytest.fixture(params=["sim", "emulator", "emulator-host-timing", "serial-pty"])
+@pytest.fixture(params=["sim", "emulator", "emulator-host-timing", "serial-pty", "c-host",
+                        "c-avr"])
 def backend(request):
     b = make_backend(request.param)
     yield b

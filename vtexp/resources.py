@@ -1,8 +1,8 @@
-"""Where shipped resources (device profiles, codings, experiments) live.
+"""Where shipped resources (device profiles, codings, experiments, firmware) live.
 
 In a source checkout or an editable install they are the top-level
-``protocols/`` and ``experiments/`` folders; a wheel carries copies under
-``vtexp/_shipped/``. ``VTEXP_PROTOCOLS`` overrides the protocols folder.
+``protocols/``, ``experiments/`` and ``firmware/`` folders; a wheel carries copies
+under ``vtexp/_shipped/``. ``VTEXP_PROTOCOLS`` overrides the protocols folder.
 """
 
 from __future__ import annotations
@@ -39,3 +39,8 @@ def codings_dir() -> Path:
     """Coding-protocol files (``protocols/codings/NAME.yaml``), named by an experiment's
     ``coding: {ref: NAME}``."""
     return protocols_dir() / "codings"
+
+
+def firmware_dir() -> Path:
+    """The reference firmware's sources (``firmware/``: C, a Makefile)."""
+    return _first_existing(_PKG / "_shipped" / "firmware", _PKG.parent / "firmware")

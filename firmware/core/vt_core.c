@@ -76,7 +76,7 @@ static struct vt_state {
 #ifdef VT_RAM_LIMIT
 /* A profile whose capacities do not fit the chip stops the build here, not in the lab. */
 _Static_assert(sizeof(struct vt_state) + VT_PORT_RAM_BYTES + VT_STACK_RESERVE <= VT_RAM_LIMIT,
-               "this profile's capacities do not fit the chip's RAM: build with a smaller "
+               "the capacities of this profile exceed the RAM of the chip: build with a smaller "
                "VT_MAX_PULSES or VT_MAX_PAYLOAD (docs/firmware.md, \"RAM and flash\")");
 #endif
 

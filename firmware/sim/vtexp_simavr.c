@@ -22,7 +22,8 @@
  *  - injects line faults (each byte, both directions: dropped, altered, or followed by
  *    a random byte, with the given probabilities; seeded) and takes commands on stdin:
  *    "mute", "unmute" (no bytes either way), "unplug" (the pty closes), "replug" (a new
- *    pty, printed as "port ..."), "reset" (the reset pin), "faults D C I", "quit";
+ *    pty, printed as "port ..."), "reset" (the reset pin), "faults D C I", "flush" (the
+ *    trace, to read it while running), "quit";
  *  - with --profile, samples the program counter every 37 cycles and writes
  *    "BYTE_ADDRESS COUNT" lines at the end (4294967295 = asleep), for
  *    firmware/tools/profile.py to attribute to functions.
@@ -351,6 +352,9 @@ static void command(char *line)
             }
     } else if (!strncmp(line, "faults ", 7)) {
         sscanf(line + 7, "%lf %lf %lf", &p_drop, &p_corrupt, &p_insert);
+    } else if (!strcmp(line, "flush")) {
+        if (trace)
+            fflush(trace);
     } else if (!strcmp(line, "quit")) {
         stopping = 1;
     }

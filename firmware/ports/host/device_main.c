@@ -201,6 +201,9 @@ static void command(const char *line)
         close_pty();
         unplugged = 0;
         open_pty();
+    } else if (!strcmp(line, "flush")) {
+        if (trace)
+            fflush(trace);
     } else if (!strcmp(line, "quit"))
         stopping = 1;
     printf("ok %s\n", line);
@@ -274,15 +277,16 @@ int main(int argc, char **argv)
     while (!stopping) {
         uint64_t due = vt_next_deadline_us();
         uint64_t now = vt_hal_now_us();
-        int timeout_ms = 50;
+        uint64_t wait_us = 50000;
         if (due != VT_NEVER)
-            timeout_ms = due <= now ? 0 : (int)((due - now + 999) / 1000);
-        if (timeout_ms > 50)
-            timeout_ms = 50;
+            wait_us = due <= now ? 0 : due - now;
+        if (wait_us > 50000)
+            wait_us = 50000;
+        struct timespec wait = {0, (long)wait_us * 1000};
         struct pollfd pf[2] = {{stdin_open ? 0 : -1, POLLIN, 0}, {master, POLLIN, 0}};
         if (master >= 0 && tx_tail != tx_head)
             pf[1].events |= POLLOUT;
-        int r = poll(pf, master >= 0 ? 2 : 1, timeout_ms);
+        int r = ppoll(pf, master >= 0 ? 2 : 1, &wait, NULL);
         if (r > 0 && (pf[0].revents & POLLIN)) {
             ssize_t n = read(0, line + line_n, sizeof line - 1 - line_n);
             if (n <= 0) {

@@ -1,0 +1,169 @@
+"""Replay ``protocols/wire/v1_vectors.json`` against a firmware's vector runner.
+
+The reference firmware has a vector runner (``firmware/runner/``): its core with a
+fake clock behind a line protocol. It runs on this computer (``vtexp-fw-vectors``,
+on stdin and stdout) and on the ATmega2560 (``vtexp-fw-vectors.elf``, on its UART:
+in simavr, or flashed on a board). :func:`replay` feeds it every vector and
+returns what differs, byte for byte; a firmware ported to another chip passes the
+same way (docs/firmware.md, "Porting the core").
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import DeviceError
+from ..resources import protocols_dir
+from . import wire
+
+CONFIG_FIELDS = ("rows", "cols", "actuator", "drive", "max_level", "max_amplitude_mv",
+                 "max_frequency_chz", "max_width_us", "max_pulses", "max_payload",
+                 "min_watchdog_ms", "max_watchdog_ms")
+
+
+def load_vectors(path: Path | None = None) -> dict:
+    p = path or protocols_dir() / "wire" / "v1_vectors.json"
+    return json.loads(p.read_text(encoding="utf-8"))
+
+
+def config_line(cfg: dict) -> str:
+    texts = [cfg[k].encode("utf-8").hex() or "-" for k in ("firmware", "device_id")]
+    return "config " + " ".join(str(cfg[k]) for k in CONFIG_FIELDS) + " " + " ".join(texts)
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    section: str
+    name: str
+    detail: str
+
+
+def _decoded(hex_bytes: str) -> str:
+    r = wire.FrameReader()
+    items = r.feed(bytes.fromhex(hex_bytes)) if hex_bytes and hex_bytes[0] != "!" else []
+    return "; ".join(wire.describe(x[1]) if isinstance(x, tuple) else f"bad frame ({x.kind})"
+                     for x in items) or "(nothing)"
+
+
+def replay(cmd: Callable[[str], str], vectors: dict | None = None) -> tuple[int, list[Mismatch]]:
+    """Feed every vector to a runner (``cmd`` sends one command line and returns the answer
+    line); return the number of checks made and the mismatches."""
+    v = vectors or load_vectors()
+    bad: list[Mismatch] = []
+    n = 0
+
+    def answer(line: str) -> str:
+        a = cmd(line)
+        return a[2:] if a.startswith("= ") else a
+
+    # CRC and COBS: the core's own functions
+    n += 1
+    got = answer("crc " + v["crc32_check"]["ascii"].encode().hex())
+    if got != v["crc32_check"]["crc32"]:
+        bad.append(Mismatch("crc32_check", "123456789", f"got {got}"))
+    for k, c in enumerate(v["cobs"]):
+        n += 2
+        if answer(f"cobs {c['decoded'] or '-'}") != c["encoded"]:
+            bad.append(Mismatch("cobs", f"example {k + 1}", "encoding differs"))
+        if answer(f"uncobs {c['encoded']}") != c["decoded"]:
+            bad.append(Mismatch("cobs", f"example {k + 1}", "decoding differs"))
+    # every message type through the core's encoder
+    for f in v["frames"]:
+        n += 1
+        raw = bytes.fromhex(f["raw"])
+        got = answer(f"frame {raw[1]} {raw[2]} {raw[3:-4].hex() or '-'}")
+        if got != f["wire"]:
+            bad.append(Mismatch("frames", f["name"], f"wire {got}, expected {f['wire']}"))
+    # the device's conversations, byte for byte, at the vectors' device times
+    for conv in v["conversations"]:
+        if cmd(config_line(conv["config"])) != "ok":
+            bad.append(Mismatch("conversations", conv["name"], "config refused"))
+            continue
+        for step in conv["steps"]:
+            n += 1
+            line = (f"at {step['t_us']} {step['host']}" if step["host"] else
+                    f"tick {step['t_us']}")
+            got = answer(line)
+            if got != step["device"]:
+                bad.append(Mismatch("conversations", conv["name"],
+                                    f"at t={step['t_us']} us: answered {_decoded(got)}; "
+                                    f"expected {_decoded(step['device'])}"))
+                break
+    # unreadable frames and resynchronisation, through a device with no session
+    vest = v["conversations"][0]["config"]
+    for bf in v["bad_frames"]:
+        n += 1
+        cmd(config_line(vest))
+        reply = wire.FrameReader().feed(bytes.fromhex(answer(f"at 1000 {bf['wire']}")))
+        naks = [m for _, m in (x for x in reply if isinstance(x, tuple))
+                if isinstance(m, wire.Nak)]
+        want = {"bad_crc": wire.NakReason.BAD_FRAME, "bad_cobs": wire.NakReason.BAD_FRAME,
+                "bad_frame": wire.NakReason.BAD_FRAME, "bad_version": wire.NakReason.BAD_VERSION,
+                "unknown_type": wire.NakReason.UNKNOWN_TYPE,
+                "bad_payload": wire.NakReason.BAD_PAYLOAD}[bf["error"]]
+        if [x.reason for x in naks] != [want]:
+            bad.append(Mismatch("bad_frames", bf["name"], f"answered {naks}"))
+    for s in v["streams"]:
+        n += 1
+        cmd(config_line(vest))
+        out = [m for x in wire.FrameReader().feed(bytes.fromhex(answer(f"at 1000 {s['wire']}")))
+               if isinstance(x, tuple) for m in [x[1]]]
+        naks = [m for m in out if isinstance(m, wire.Nak)]
+        replies = [(type(m).__name__, m.ack_seq) for m in out if not isinstance(m, wire.Nak)]
+        wanted = [("HelloReply", 0), ("Ack", 2)]
+        if len(naks) != s["n_errors"] or replies != wanted:
+            bad.append(Mismatch("streams", s["name"], f"{len(naks)} NAKs and replies {replies}"))
+    return n, bad
+
+
+class ProcessRunner:
+    """The host build's vector runner, on its stdin and stdout."""
+
+    def __init__(self, exe: Path):
+        self.proc = subprocess.Popen([str(exe)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     text=True, bufsize=1)
+
+    def __call__(self, line: str) -> str:
+        assert self.proc.stdin and self.proc.stdout
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+        return self.proc.stdout.readline().rstrip("\n")
+
+    def close(self) -> None:
+        if self.proc.stdin:
+            self.proc.stdin.close()
+        self.proc.wait(5)
+
+
+class SerialRunner:
+    """A vector runner on a serial port (the ATmega2560's, in simavr or on a board): waits
+    for its "vectors ready" banner, then one command line per answer line."""
+
+    def __init__(self, port: str, baudrate: int = 1_000_000, timeout_s: float = 10.0):
+        import serial
+
+        self.port = serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s)
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            if self.port.readline().strip() == b"vectors ready":
+                return
+        raise DeviceError(f"no vector runner answered on {port} (expected its 'vectors ready' "
+                          "banner; flash build/avr/vectors/vtexp-fw-vectors.hex)")
+
+    def __call__(self, line: str) -> str:
+        self.port.write((line + "\n").encode())
+        answer = self.port.readline()
+        if not answer.endswith(b"\n"):
+            raise DeviceError(f"the vector runner did not answer {line[:40]!r} in time")
+        return answer.decode().rstrip("\n")
+
+    def close(self) -> None:
+        self.port.close()
+
+
+__all__ = ["Mismatch", "ProcessRunner", "SerialRunner", "load_vectors", "replay"]
