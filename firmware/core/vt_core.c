@@ -693,6 +693,12 @@ static void do_trigger(uint8_t seq, const uint8_t *p)
     S.op_count = 0;
     for (uint16_t i = 0; i < S.n_pulses; i++)
         S.onsets[i] = VT_NOT_PLAYED_U32;
+#if VT_HAL_SCHEDULES_COMMITS
+    /* A port that applies sets itself gets the first instant now, before the reply is
+     * queued: the start it chose leaves room for this, not for other frames too. No
+     * event can come of it before the reply: the set goes out at its tick. */
+    play_poll();
+#endif
     send_ack(seq, start);
 }
 

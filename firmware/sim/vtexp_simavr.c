@@ -18,7 +18,8 @@
  *    previous one), "oe" (PB5, with its pull-up: 1 = outputs disabled), "sync" (PB6),
  *    "port" (the SMA gate ports A, C, L and G bit 0), "rx0"/"tx0" (a frame delimiter
  *    into / out of the UART), "reset", "wall" (wall-clock ns, every 100 ms), and at
- *    the end "stack" (deepest stack, bytes) and "peek" (memory asked for);
+ *    the end "stack" (deepest stack, bytes) and "peek" (memory asked for); "clock" when
+ *    the firmware starts Timer1 (the cycle its device time 0 counts from);
  *  - injects line faults (each byte, both directions: dropped, altered, or followed by
  *    a random byte, with the given probabilities; seeded) and takes commands on stdin:
  *    "mute", "unmute" (no bytes either way), "unplug" (the pty closes), "replug" (a new
@@ -276,6 +277,16 @@ static void spi_write(struct avr_t *a, avr_io_addr_t addr, uint8_t v, void *para
     avr_cycle_timer_register(a, 8 * d, spi_done, p);
 }
 
+/* Timer1's clock select being written: the firmware's clock starts (its time 0). */
+static void tccr1b_write(struct avr_t *a, avr_io_addr_t addr, uint8_t v, void *param)
+{
+    (void)a;
+    (void)addr;
+    (void)param;
+    if (v & 7)
+        trace_line("\"e\":\"clock\",\"tccr1b\":%u", v);
+}
+
 static void fix_spi_timing(void)
 {
     for (avr_io_t *io = avr->io_port; io; io = io->next) {
@@ -452,6 +463,7 @@ int main(int argc, char **argv)
         avr->data[a] = PAINT;                 /* to measure the deepest stack */
 
     fix_spi_timing();
+    avr_register_io_write(avr, 0x81, tccr1b_write, NULL);    /* TCCR1B, shared with the timer */
     uint32_t f = 0;
     avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &f);
     f &= ~AVR_UART_FLAG_STDIO;

@@ -51,6 +51,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     s = ds.add_parser("emulate", help="serve an emulated device on a pseudo-terminal")
     s.add_argument("--profile", required=True, help="device profile to emulate")
+    s.add_argument("--firmware", choices=["python", "host", "avr"], default="python",
+                   help="what answers: python (vtexp's model of the firmware, default), host "
+                        "(the reference firmware in C, built for this computer) or avr (the "
+                        "reference firmware's ATmega2560 build, the .elf a lab flashes, in "
+                        "simavr)")
+    s.add_argument("--trace", metavar="FILE",
+                   help="with --firmware avr or host: write what the outputs did to FILE "
+                        "(JSON lines; for avr, the chip's pins with CPU cycles)")
+    s.add_argument("--insert", type=float, default=0.0, metavar="RATE",
+                   help="with --firmware avr or host: probability that a random byte is "
+                        "inserted after each byte")
     s.add_argument("--drop", type=float, default=0.0, metavar="RATE",
                    help="probability that a byte is lost (each direction)")
     s.add_argument("--corrupt", type=float, default=0.0, metavar="RATE",
@@ -181,10 +192,15 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     from ..model import DeviceProfile
 
     profile = DeviceProfile.load(args.profile)
-    for name in ("drop", "corrupt"):
+    for name in ("drop", "corrupt", "insert"):
         v = getattr(args, name)
         if not 0 <= v < 1:
             raise InputError(f"a probability from 0 to 1 is needed (got {v})", key=f"--{name}")
+    if args.firmware != "python":
+        return _emulate_c_firmware(args, profile)
+    if args.trace or args.insert:
+        raise InputError("applies to --firmware avr or host only",
+                         key="--trace" if args.trace else "--insert")
     trace = None
     if args.verbose:
         t0 = time.perf_counter()
@@ -217,4 +233,43 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     c = emu.firmware.counters
     out(f"emulator stopped: {c.rx_frames} frames received, {c.rx_bad} bad, "
         f"{c.duplicates} repeats answered from cache, {c.watchdog_trips} watchdog trips")
+    return 0
+
+
+def _emulate_c_firmware(args: argparse.Namespace, profile) -> int:
+    """``vtexp device emulate --firmware avr|host``: the reference firmware in C."""
+    from pathlib import Path
+
+    from ..devices.cfirmware import AvrSimulator, HostFirmware
+    from ..errors import InputError
+
+    for flag, value in (("--delay-ms", args.delay_ms), ("--rows", args.rows),
+                        ("--cols", args.cols), ("--clock-ppm", args.clock_ppm)):
+        if value:
+            raise InputError("applies to the Python emulator only (--firmware python)", key=flag)
+    if args.verbose:
+        raise InputError("applies to the Python emulator only; to watch the traffic, put "
+                         "'vtexp device monitor' between it and the experiment", key="--verbose")
+    trace = Path(args.trace) if args.trace else None
+    faults = (args.drop, args.corrupt, args.insert)
+    if args.firmware == "avr":
+        proc = AvrSimulator(profile.name, trace=trace, faults=faults, seed=args.seed)
+        what = f"the reference firmware's ATmega2560 build in simavr ({proc.elf})"
+    else:
+        proc = HostFirmware(profile, trace=trace, faults=faults, seed=args.seed)
+        what = "the reference firmware built for this computer"
+    port = proc.start()
+    out(f"emulating {profile.name} with {what} on {port}")
+    out(f"use it with --device serial:{port}   (Ctrl-C to stop)")
+    try:
+        while proc.proc is not None and proc.proc.poll() is None:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        proc.stop()
+    if proc.stderr.strip():
+        out(proc.stderr.strip().splitlines()[-1])
+    if trace is not None:
+        out(f"trace written to {trace}")
     return 0

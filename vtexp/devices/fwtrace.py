@@ -47,6 +47,16 @@ class Trace:
     end: dict = field(default_factory=dict)
     stack_used: int | None = None
     peeks: dict[int, bytes] = field(default_factory=dict)
+    clock_start: int | None = None      # cycle at which the firmware started Timer1
+
+    def device_us(self, cycle: int) -> float:
+        """The firmware's clock (us since it started Timer1) at ``cycle``."""
+        assert self.clock_start is not None, "the firmware never started its clock"
+        return (cycle - self.clock_start) / (HZ / 1e6)
+
+    def cycle_of(self, device_us: float) -> float:
+        assert self.clock_start is not None, "the firmware never started its clock"
+        return self.clock_start + device_us * (HZ / 1e6)
 
     @classmethod
     def load(cls, path: str | Path) -> Trace:
@@ -72,6 +82,7 @@ class Trace:
                     t.tx0.append(c)
                 elif e == "reset":
                     t.resets.append(c)
+                    t.clock_start = None          # the firmware starts its clock again
                 elif e == "wall":
                     t.wall.append((c, d["ns"]))
                 elif e == "stack":
@@ -80,6 +91,8 @@ class Trace:
                     t.peeks[d["a"]] = bytes.fromhex(d["d"])
                 elif e == "end":
                     t.end = d
+                elif e == "clock" and t.clock_start is None:
+                    t.clock_start = c
         return t
 
     @property
@@ -280,7 +293,9 @@ class Train:
 
 def trains(trace: Trace, n_pins: int = 25, gap_us: float = 100_000.0) -> list[Train]:
     """Group each pin's pulses into trains: a new train starts at a sync edge (an onset)
-    or after ``gap_us`` without a pulse."""
+    or after ``gap_us`` without a pulse, unless the pulse comes one period after the
+    train's last (then another pin's onset fell on the same tick). A train's second
+    pulse falling on another pin's onset cannot be told apart: it starts a train."""
     rises = trace.sync_rises
     codes = dac_codes(trace)
     out: list[Train] = []
@@ -296,7 +311,15 @@ def trains(trace: Trace, n_pins: int = 25, gap_us: float = 100_000.0) -> list[Tr
         group: list[tuple[int, int]] = []
         for r, f in pulses:
             onset = bool(len(rises)) and int(np.min(np.abs(rises - r))) <= 64
-            if group and (onset or us(r - group[-1][0]) > gap_us):
+            if len(group) >= 2:
+                # the train's own next pulse is a period after the last: that is no new
+                # train, even when another pin's onset falls on the same tick
+                period = group[-1][0] - group[-2][0]
+                on_time = abs(r - group[-1][0] - period) <= 1600        # one 100 us tick
+                new = not on_time and (onset or us(r - group[-1][0]) > gap_us)
+            else:
+                new = bool(group) and (onset or us(r - group[-1][0]) > gap_us)
+            if new:
                 out.append(_train(i, group, codes))
                 group = []
             group.append((r, f))

@@ -141,19 +141,28 @@ class ProcessRunner:
 
 
 class SerialRunner:
-    """A vector runner on a serial port (the ATmega2560's, in simavr or on a board): waits
-    for its "vectors ready" banner, then one command line per answer line."""
+    """A vector runner on a serial port (the ATmega2560's, in simavr or on a board): one
+    command line, one answer line. Opening waits until the runner answers (a board
+    resets when its port opens, and bytes sent before its UART is up are lost)."""
+
+    PROBE = ("crc 00", "= d202ef8d")
 
     def __init__(self, port: str, baudrate: int = 1_000_000, timeout_s: float = 10.0):
         import serial
 
-        self.port = serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s)
+        self.port = serial.serial_for_url(port, baudrate=baudrate, timeout=0.2)
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
-            if self.port.readline().strip() == b"vectors ready":
+            self.port.write((self.PROBE[0] + "\n").encode())
+            line = self.port.readline().strip().decode(errors="replace")
+            while line and line != self.PROBE[1]:
+                line = self.port.readline().strip().decode(errors="replace")
+            if line == self.PROBE[1]:
+                self.port.reset_input_buffer()
+                self.port.timeout = timeout_s
                 return
-        raise DeviceError(f"no vector runner answered on {port} (expected its 'vectors ready' "
-                          "banner; flash build/avr/vectors/vtexp-fw-vectors.hex)")
+        raise DeviceError(f"no vector runner answered on {port} (flash it with 'vtexp firmware "
+                          "flash --profile vectors')")
 
     def __call__(self, line: str) -> str:
         self.port.write((line + "\n").encode())

@@ -61,9 +61,11 @@
 
 #endif /* VT_RUNNER */
 
-/* A play starts at least this long after its TRIGGER: time for the main loop to answer
- * and prepare the first instant (about 1 ms at 16 MHz) before its tick. */
-#define VT_START_LEAD_US 2000
+/* A play starts at least this long after its TRIGGER: time to prepare its first instant
+ * (up to about 1 ms at 16 MHz for 100 onsets at once) and whatever frame the host sent
+ * meanwhile, before the tick. With the alignment to a tick, within the 5 ms that
+ * docs/protocol.md allows. */
+#define VT_START_LEAD_US 3000
 
 #define VT_RAM_LIMIT 7680           /* 7.5 KiB of the 8 KiB: the rest is stack */
 #define VT_STACK_RESERVE 384        /* measured deepest stack + interrupts, with margin */
