@@ -304,3 +304,26 @@ def test_sma_trains_survive_a_noisy_line():
         for _ in range(4):
             dev.play(s)
     assert sorted(on_events(dev.emulator)) == sorted(expected(s, 5) * 4)
+
+
+# --------------------------------------------------------------------------- link settings
+
+def test_link_settings_after_the_port_reach_the_device(emu):
+    dev = open_device(f"serial:{emu.port},heartbeat_ms=400,watchdog_ms=900,baud=115200", VEST)
+    with dev:
+        info = dev.info()
+        assert (info.details["heartbeat_ms"], info.details["watchdog_ms"]) == (400, 900)
+        assert info.details["baudrate"] == 115200
+    assert (emu.firmware.heartbeat_ms, emu.firmware.watchdog_ms) == (400, 900)
+
+
+@pytest.mark.parametrize("spec, says", [
+    ("serial:/dev/ttyACM0,heartbeat=500", "unknown serial option 'heartbeat=500'"),
+    ("serial:/dev/ttyACM0,watchdog_ms=0", "watchdog_ms must be a whole number above 0"),
+    ("serial:/dev/ttyACM0,baud=fast", "baud must be a whole number above 0"),
+    ("serial:/dev/ttyACM0,timing=soon", "timing must be device or host"),
+])
+def test_a_wrong_link_setting_is_named(spec, says):
+    from vtexp.errors import InputError
+    with pytest.raises(InputError, match=says):
+        open_device(spec, VEST)

@@ -41,12 +41,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--on-ms", type=float, default=300.0,
                    help="how long each actuator is driven (default 300 ms)")
     s.add_argument("--pings", type=int, default=50, help="round trips measured (default 50)")
-    s.add_argument("--baud", type=int, default=115200, help="UART baud rate (default 115200)")
+    s.add_argument("--baud", type=int, default=1_000_000,
+                   help="UART baud rate (default 1000000, the reference firmware's)")
     s.set_defaults(func=cmd_check)
 
     s = ds.add_parser("monitor", help="decode and print the traffic to and from a device")
     s.add_argument("--device", required=True, help="serial:PORT of the device")
-    s.add_argument("--baud", type=int, default=115200)
+    s.add_argument("--baud", type=int, default=1_000_000,
+                   help="UART baud rate (default 1000000, the reference firmware's)")
     s.set_defaults(func=cmd_monitor)
 
     s = ds.add_parser("emulate", help="serve an emulated device on a pseudo-terminal")

@@ -5,7 +5,9 @@ Specs for :func:`open_device` (and ``--device`` on the command line):
 - ``sim`` (the embedded default), ``sim:realtime``: in-process, virtual clock;
 - ``serial:PORT``: a device speaking wire protocol v1 (``docs/protocol.md``)
   on any port pyserial opens: ``serial:/dev/ttyACM0``, ``serial:COM3``,
-  ``serial:/dev/pts/4``, ``serial:socket://host:7000``;
+  ``serial:/dev/pts/4``, ``serial:socket://host:7000``; link settings after
+  commas: ``serial:/dev/ttyACM0,baud=115200,heartbeat_ms=500,watchdog_ms=1000``
+  (:data:`SERIAL_OPTIONS`);
 - ``emulator``: the same serial backend talking to an emulated device that
   it starts on a pseudo-terminal (byte-exact, no hardware).
 
@@ -25,6 +27,35 @@ if TYPE_CHECKING:
     from .sim import SimDevice
 
 BACKENDS = ("sim", "serial", "emulator")
+#: ``serial:PORT,KEY=VALUE,...``: what may follow the port, and the SerialDevice argument.
+SERIAL_OPTIONS = {"baud": "baudrate", "heartbeat_ms": "heartbeat_ms",
+                  "watchdog_ms": "watchdog_ms", "timing": "timing"}
+
+
+def _serial_options(arg: str) -> tuple[str, dict[str, Any]]:
+    port, *items = arg.split(",")
+    options: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key not in SERIAL_OPTIONS:
+            raise InputError(f"unknown serial option {item!r}; after the port: "
+                             + ", ".join(f"{k}=..." for k in SERIAL_OPTIONS)
+                             + " (e.g. serial:/dev/ttyACM0,heartbeat_ms=500)", key="--device")
+        if key == "timing":
+            if value not in ("device", "host"):
+                raise InputError(f"timing must be device or host (got {value!r})",
+                                 key="--device")
+            options["timing"] = value
+            continue
+        try:
+            n = int(value)
+        except ValueError:
+            n = 0
+        if n <= 0:
+            raise InputError(f"{key} must be a whole number above 0 (got {value!r})",
+                             key="--device")
+        options[SERIAL_OPTIONS[key]] = n
+    return port, options
 
 
 def open_device(spec: str, profile: DeviceProfile, **options: Any) -> DeviceBase:
@@ -42,7 +73,8 @@ def open_device(spec: str, profile: DeviceProfile, **options: Any) -> DeviceBase
                              "serial:COM3 or serial:socket://HOST:PORT ('vtexp device list' "
                              "shows the ports found)", key="--device")
         from .serial_device import SerialDevice
-        return SerialDevice(profile, arg, **options)
+        port, from_spec = _serial_options(arg)
+        return SerialDevice(profile, port, **{**options, **from_spec})
     if kind == "emulator":
         if arg:
             raise InputError(f"'emulator' takes no option (got {arg!r}); to drive an emulator "

@@ -158,7 +158,8 @@ class SerialDevice(DeviceBase):
     port:
         Anything ``serial.serial_for_url`` opens.
     baudrate:
-        Of the UART (ignored by USB CDC devices and ptys, used for timeouts).
+        Of the UART (ignored by USB CDC devices and ptys, used for timeouts). The
+        reference firmware runs at 1,000,000 baud (docs/firmware.md).
     timing:
         ``"device"`` (upload and trigger) or ``"host"`` (stream frames).
     heartbeat_ms:
@@ -166,14 +167,17 @@ class SerialDevice(DeviceBase):
         host's silence limit follow it.
     watchdog_ms:
         Device watchdog; defaults to the heartbeat period.
+    handshake_timeout_s:
+        How long HELLO is tried: an Arduino resets when its port opens, and its
+        bootloader waits about a second before the firmware starts.
     """
 
     backend = "serial"
 
-    def __init__(self, profile: DeviceProfile, port: str, *, baudrate: int = 115200,
+    def __init__(self, profile: DeviceProfile, port: str, *, baudrate: int = 1_000_000,
                  timing: Timing = "device", heartbeat_ms: int = 200,
                  watchdog_ms: int | None = None, reply_timeout_ms: float = 25,
-                 retries: int = 8, handshake_timeout_s: float = 1.0,
+                 retries: int = 8, handshake_timeout_s: float = 3.0,
                  trace: Callable[[str, object], None] | None = None):
         super().__init__(profile)
         if timing not in ("device", "host"):

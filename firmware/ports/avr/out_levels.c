@@ -119,7 +119,7 @@ void vt_out_tick(void)
     /* 3. The next tick's plane; the UART may interrupt this (never the tick itself: a
      * shift of 50 bytes takes about 80 us of the 1000). */
     sei();
-    uint8_t use = commit_state == SCHEDULED && commit_tick == k + 1;
+    uint8_t use = commit_state == SCHEDULED && (int32_t)(commit_tick - (k + 1)) <= 0;
     uint8_t next = (use && commit_rephase) ? 0 : (uint8_t)(slot + 1 == SLOTS ? 0 : slot + 1);
     shift_out(planes[use ? active ^ 1 : active][next]);
     cli();

@@ -68,12 +68,7 @@ enum { NONE, SCHEDULED, DONE };
 static volatile uint8_t commit_state, commit_onsets, pre_commit, pre_sync;
 static volatile uint32_t commit_tick;
 static volatile uint64_t commit_t;
-static volatile uint32_t busy_dac;    /* ... whose DAC channel must wait for the tick */
 static volatile uint8_t preparing;   /* the tick interrupt is preparing the next tick */
-
-_Static_assert(sizeof pins + sizeof staged + sizeof dac_code + sizeof dac_want
-                   <= VT_PORT_RAM_BYTES - 256 - 128 - 64,
-               "profile " VT_PROFILE_NAME ": the train state exceeds the port's RAM budget");
 
 static void gates(uint8_t a, uint8_t c, uint8_t l, uint8_t g)
 {
@@ -92,27 +87,22 @@ void vt_out_safe(void)
     DDRG |= 1;
 }
 
-static void dac_words(const int8_t *channel, const uint16_t *code)
-{
-    /* one word per chip, the farthest first */
-    for (int8_t chip = VT_DAC_CHIPS - 1; chip >= 0; chip--) {
-        uint8_t cmd = channel[chip] < 0 ? DAC_NOP : DAC_WRITE;
-        uint8_t addr = channel[chip] < 0 ? 0 : (uint8_t)channel[chip];
-        uint16_t v = channel[chip] < 0 ? 0 : (uint16_t)(code[chip] << 4);
-        uint8_t w[4] = {0, (uint8_t)(cmd << 4 | addr), (uint8_t)(v >> 8), (uint8_t)v};
-        for (uint8_t i = 0; i < 4; i++) {
-            SPDR = w[i];
-            while (!(SPSR & _BV(SPIF)))
-                ;
-        }
-    }
-    LATCH_PORT |= _BV(LATCH_BIT);             /* CS/LD rising: the chips execute */
-}
+#define DAC_XFER (4 * VT_DAC_CHIPS)               /* bytes of one transfer: a word a chip */
+static uint8_t dac_xfer[8 * DAC_XFER];          /* planned transfers, sent at the commit */
+static volatile uint8_t n_dac_xfer;
 
-/* Write the channels of the pins in mask whose code differs from what they hold. */
-static void dac_update(uint32_t mask)
+_Static_assert(sizeof pins + sizeof staged + sizeof dac_code + sizeof dac_want + sizeof dac_xfer
+                   <= VT_PORT_RAM_BYTES - 256 - 128 - 64,
+               "profile " VT_PROFILE_NAME ": the train state exceeds the port's RAM budget");
+
+
+/* Plan the transfers that give the pins in mask the codes they need (one channel per chip
+ * per transfer: a word per chip, the farthest first, NOP for the others) into buf;
+ * returns how many. The codes count as written from now on. */
+static uint8_t dac_plan(uint32_t mask, uint8_t *buf, uint8_t max)
 {
-    for (;;) {
+    uint8_t n = 0;
+    while (n < max) {
         int8_t channel[VT_DAC_CHIPS];
         uint16_t code[VT_DAC_CHIPS];
         uint8_t any = 0;
@@ -129,10 +119,40 @@ static void dac_update(uint32_t mask)
             any = 1;
         }
         if (!any)
-            return;
-        LATCH_PORT &= (uint8_t)~_BV(LATCH_BIT);
-        dac_words(channel, code);
+            break;
+        uint8_t *w = buf + n * DAC_XFER;
+        for (int8_t chip = VT_DAC_CHIPS - 1; chip >= 0; chip--) {
+            uint8_t on = channel[chip] >= 0;
+            uint16_t v = on ? (uint16_t)(code[chip] << 4) : 0;
+            *w++ = 0;
+            *w++ = (uint8_t)((on ? DAC_WRITE : DAC_NOP) << 4 | (on ? channel[chip] : 0));
+            *w++ = (uint8_t)(v >> 8);
+            *w++ = (uint8_t)v;
+        }
+        n++;
     }
+    return n;
+}
+
+/* Send planned transfers: CS/LD low, the bytes, CS/LD rising (the chips execute). */
+static void dac_send(const uint8_t *buf, uint8_t n)
+{
+    for (uint8_t k = 0; k < n; k++) {
+        LATCH_PORT &= (uint8_t)~_BV(LATCH_BIT);
+        for (uint8_t i = 0; i < DAC_XFER; i++) {
+            SPDR = buf[k * DAC_XFER + i];
+            while (!(SPSR & _BV(SPIF)))
+                ;
+        }
+        LATCH_PORT |= _BV(LATCH_BIT);
+    }
+}
+
+/* Write now the channels of the pins in mask whose code differs from what they hold. */
+static void dac_update(uint32_t mask)
+{
+    uint8_t buf[8 * DAC_XFER];
+    dac_send(buf, dac_plan(mask, buf, 8));
 }
 
 void vt_out_init(void)
@@ -240,11 +260,22 @@ void vt_out_tick(void)
     uint16_t c = TCNT1;                       /* when, in 0.5 us counts after the tick */
     PORTB = pb;
     uint32_t k = vt_clock_tick();
+    uint8_t applied = pre_commit;
     if (pre_commit) {
         pre_commit = 0;
         commit_t = vt_clock_now_at(c);
         commit_state = DONE;
         vt_out_event = 1;
+    }
+    if (applied && n_dac_xfer) {
+        /* The amplitudes of trains that replace a running one on their pin: sent after
+         * this tick's edges (the first ~35 us per transfer of the new train's first pulse
+         * carry the old amplitude), not before (that would touch the old train). */
+        uint8_t n = n_dac_xfer;
+        n_dac_xfer = 0;
+        sei();
+        dac_send(dac_xfer, n);
+        cli();
     }
     if (vt_deadline_armed && (int32_t)(k - vt_deadline_tick) >= 0) {
         gates(0, 0, 0, 0);                    /* the host is gone: every pin off now */
@@ -253,15 +284,15 @@ void vt_out_tick(void)
         all_pins_off();
     }
     if (preparing)
-        return;                               /* the previous tick is still preparing */
+        return;                               /* the previous tick is still preparing: this
+                                               * tick's work (a set due, edges) is done at
+                                               * the next, late rather than lost */
     preparing = 1;
     sei();
     /* The next tick: a committed set starts there, and edges due by then happen there. */
     uint32_t t_next = vt_tick_us_lo + VT_TICK_US;             /* us, wrapping */
-    uint8_t commit = commit_state == SCHEDULED && commit_tick == k + 1;
+    uint8_t commit = commit_state == SCHEDULED && (int32_t)(commit_tick - (k + 1)) <= 0;
     if (commit) {
-        if (busy_dac)
-            dac_update(busy_dac);             /* channels of trains still running */
         for (uint8_t k = 0; k < n_staged; k++) {
             uint8_t i = staged_list[k];
             if (!staged[i].s.a) {
@@ -330,14 +361,10 @@ void vt_hal_commit_at(uint64_t t_us, uint8_t onsets)
         if (!pins[i].on)
             idle |= bit;
     }
-    dac_update(idle);
-    uint32_t busy = 0;
-    bit = 1;
-    for (uint8_t i = 0; i < N; i++, bit <<= 1)
-        if ((staged_mask & bit) && staged[i].s.a && dac_code[i] != dac_want[i])
-            busy |= bit;
+    dac_update(idle);                         /* idle pins: at once, nothing to disturb */
+    uint8_t n_busy = dac_plan(staged_mask & ~idle, dac_xfer, 8);
     cli();
-    busy_dac = busy;
+    n_dac_xfer = n_busy;                      /* the rest: sent by the commit's tick */
     if ((int32_t)(k - (vt_ticks + 2)) < 0)
         k = vt_ticks + 2;
     commit_tick = k;

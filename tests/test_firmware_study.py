@@ -1,0 +1,113 @@
+"""A whole study on the reference firmware's ATmega2560 build, as a lab would run it.
+
+``vtexp device emulate --firmware avr --profile sma_5x5`` serves the .elf a lab
+flashes, in simavr, on a pseudo-terminal; ``vtexp run`` plays seed 002's
+circle-vs-rectangle study on it through ``serial:PORT`` with a scripted participant.
+Then the chip's pins (the harness's trace) are held against the session's log:
+every pulse the log says was played rose on its pin at the logged onset, at its
+amplitude, and nothing rose on any pin that the log does not explain.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from vtexp.devices import fwtrace
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDY = ROOT / "experiments" / "circle_vs_rectangle.yaml"
+SLACK_US = 20           # edges come 6-15 us after their 100 us tick (interrupt entry)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("avr_study")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    trace = tmp / "pins.jsonl"
+    emu = subprocess.Popen([sys.executable, "-m", "vtexp", "device", "emulate", "--firmware",
+                            "avr", "--profile", "sma_5x5", "--trace", str(trace)],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        first = emu.stdout.readline()
+        assert first.startswith("emulating sma_5x5 with the reference firmware's ATmega2560"), \
+            first + emu.stderr.read()
+        hint = emu.stdout.readline()
+        # A heartbeat period of a second, as on a busy lab computer: the simulated chip can
+        # fall behind the wall clock by a tenth of a second when the machine is loaded.
+        port = hint.split("--device ")[1].split()[0] + ",heartbeat_ms=1000"
+
+        run = subprocess.run(
+            [sys.executable, "-m", "vtexp", "run", str(STUDY), "--participant", "01",
+             "--device", port, "--responder", "scripted:random", "--data", str(tmp / "data")],
+            stdin=subprocess.DEVNULL, capture_output=True, text=True, env=env, timeout=600)
+    finally:
+        emu.send_signal(signal.SIGINT)             # Ctrl-C, as at the terminal
+        out, err = emu.communicate(timeout=30)
+    return tmp, run, out, trace
+
+
+def test_the_study_runs_to_its_end_on_the_chip(session):
+    tmp, run, emu_out, _ = session
+    assert run.returncode == 0, run.stderr
+    assert "Traceback" not in run.stderr
+    assert "device check passed; no actuator is on" in run.stdout
+    assert "session completed: 20 trials logged" in run.stdout
+    meta = json.loads((tmp / "data" / "circle_vs_rectangle" / "sub-01" / "ses-1" /
+                       "session.json").read_text())
+    assert meta["status"] == "completed"
+    assert meta["device"]["firmware"].startswith("vtexp-fw ") and "avr sma_5x5" in \
+        meta["device"]["firmware"]
+    assert "trace written to" in emu_out
+
+
+def test_every_logged_pulse_is_on_the_pins_and_nothing_else(session):
+    tmp, run, _, trace_path = session
+    assert run.returncode == 0, run.stderr
+    ses = tmp / "data" / "circle_vs_rectangle" / "sub-01" / "ses-1"
+    meta = json.loads((ses / "session.json").read_text())
+    events = pd.read_csv(ses / meta["files"]["events"], sep="\t")
+    tr = fwtrace.Trace.load(trace_path)
+    edges = fwtrace.gate_edges(tr)
+    rises = {i: np.array([tr.device_us(c) for c, s in e if s]) for i, e in edges.items()}
+    times = {i: np.array([tr.device_us(c) for c, _ in e]) for i, e in edges.items()}
+    states = {i: np.array([s for _, s in e]) for i, e in edges.items()}
+    codes = fwtrace.dac_codes(tr)
+    explained = {i: np.zeros(len(r), dtype=bool) for i, r in rises.items()}
+
+    def high_at(pin: int, t_us: float) -> bool:
+        k = np.searchsorted(times[pin], t_us, side="right") - 1
+        return k >= 0 and bool(states[pin][k])
+
+    for e in events.itertuples():
+        pin = e.row * 5 + e.col
+        t0 = e.onset_ms * 1000.0
+        f_chz = round(e.frequency_hz * 100)
+        k = np.arange(0, int(e.duration_ms * 1000 * f_chz // 100_000_000) + 1)
+        want = t0 + (k * 100_000_000) // f_chz
+        want = want[want < t0 + e.duration_ms * 1000]
+        for w in want:
+            d = rises[pin] - w
+            hit = np.flatnonzero((d >= 0) & (d <= SLACK_US))
+            explained[pin][hit] = True
+            # a rise there, or the pin already high: the pulse of the train it takes over
+            # from ran into this instant (the latest started drives the pin)
+            assert len(hit) == 1 or (w == t0 and high_at(pin, w)), \
+                f"pin {pin}: no pulse at {w:.0f} us (trial {e.trial})"
+            assert high_at(pin, w + SLACK_US), f"pin {pin}: low at {w:.0f} us"
+        # the amplitude its DAC channel holds from the train's start (a train that takes
+        # over a pin mid-flight gets it within the first tick: docs/firmware.md)
+        held = [v for c, p, v in codes if p == pin and tr.device_us(c) <= t0 + 100]
+        assert held and fwtrace.code_to_mv(held[-1], 2000) == round(e.amplitude_v * 1000)
+    for pin, ok in explained.items():
+        assert ok.all(), f"pin {pin}: {int((~ok).sum())} pulses the log does not explain"
+    assert sum(len(r) for r in rises.values()) > len(events)    # trains of several pulses
+    assert fwtrace.all_off_at_end(tr, 25)
