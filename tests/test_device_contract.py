@@ -88,7 +88,8 @@ def make_backend(name: str) -> Backend:
             else:
                 proc = AvrSimulator(prof.name)
             procs.append(proc)
-            dev = open_device(f"serial:{proc.start()}", prof)
+            # a second's heartbeat: the simulated chip may lag the wall clock under load
+            dev = open_device(f"serial:{proc.start()},heartbeat_ms=1000,reply_ms=250", prof)
             dev.test_firmware = proc
             return dev
 

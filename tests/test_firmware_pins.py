@@ -34,6 +34,14 @@ SMA = DeviceProfile.load("sma_5x5")
 TICK = 16_000                 # cycles per 1 ms PWM tick
 
 
+def link(sim: AvrSimulator, heartbeat_ms: int = 1000) -> str:
+    """The simulator's port as ``vtexp device emulate --firmware avr`` suggests it: on a
+    loaded 2-core machine the simulated chip can fall a tenth of a second behind the wall
+    clock, which a 200 ms heartbeat would take for a pulled cable and a 25 ms reply wait
+    for a lost frame (the watchdog tests use their own)."""
+    return f"serial:{sim.port},heartbeat_ms={heartbeat_ms},reply_ms=250"
+
+
 def trace_of(sim: AvrSimulator) -> fwtrace.Trace:
     sim.command("flush")
     return fwtrace.Trace.load(sim.trace_path)
@@ -89,7 +97,7 @@ def sweep(profile: DeviceProfile, n: int = 12, soa: int = 50, dur: int = 70) -> 
 def test_reported_onsets_are_the_latch_edges_and_sync_marks_each_instant(profile):
     s = sweep(profile)
     with AvrSimulator(profile.name) as sim:
-        with open_device(f"serial:{sim.port}", profile) as dev:
+        with open_device(link(sim), profile) as dev:
             reports = [dev.play(s), dev.play(s)]
         tr = trace_of(sim)
     rises = tr.sync_rises
@@ -110,7 +118,7 @@ def test_outputs_equal_the_schedule_tick_for_tick(profile):
     s = sweep(profile)
     n_ticks = round(s.duration_ms) + 1          # to the tick after the last pulse ends
     with AvrSimulator(profile.name) as sim:
-        with open_device(f"serial:{sim.port}", profile) as dev:
+        with open_device(link(sim), profile) as dev:
             reps = [dev.play(s), dev.play(s)]
         tr = trace_of(sim)
     want = expected_bits(s.pulses, profile, 0, n_ticks)
@@ -126,7 +134,7 @@ def test_each_level_has_its_table_1_duty():
         Pulse(row=level, col=2 * level % 20, onset_ms=0, duration_ms=60, level=level)
         for level in range(1, 11)])
     with AvrSimulator("pad_20x20") as sim:
-        with open_device(f"serial:{sim.port}", PAD) as dev:
+        with open_device(link(sim), PAD) as dev:
             dev.play(s)
         tr = trace_of(sim)
     seen = fwtrace.duty_per_level(tr, 400)
@@ -142,7 +150,7 @@ def test_sma_trains_on_the_pins():
         Pulse(row=0, col=0, onset_ms=0, duration_ms=200, train=tr_40),
         Pulse(row=2, col=3, onset_ms=50, duration_ms=200, train=tr_25)])
     with AvrSimulator("sma_5x5") as sim:
-        with open_device(f"serial:{sim.port}", SMA) as dev:
+        with open_device(link(sim), SMA) as dev:
             rep = dev.play(s)
         tr = trace_of(sim)
     trains = fwtrace.trains(tr)
@@ -160,6 +168,59 @@ def test_sma_trains_on_the_pins():
         onset_us = rep.started_at_ms * 1000 + pulse.onset_ms * 1000
         assert abs(tr.device_us(train.start) - onset_us) <= 1.0
 
+
+def test_a_full_20x20_frame_and_a_256_pulse_schedule_on_the_pad():
+    # one whole 10 ms carrier period each, so that every level shows its duty
+    big = Schedule(device="pad_20x20", pulses=[
+        Pulse(row=i // 20 % 20, col=i % 20, onset_ms=i * 12, duration_ms=10, level=1 + i % 10)
+        for i in range(256)])
+    sim = AvrSimulator("pad_20x20")
+    with sim:
+        with open_device(link(sim), PAD) as dev:
+            full = wire.SetFrameFull(1, tuple(wire.Level(1) for _ in range(400)))
+            assert isinstance(dev._link.expect(full, wire.Ack), wire.Ack)
+            time.sleep(0.05)
+            dev._link.expect(wire.AllOff(), wire.Ack)
+            rep = dev.play(big)
+    tr = fwtrace.Trace.load(sim.trace_path)
+    assert fwtrace.chain_outputs(tr, 400).bits.all(axis=1).any()     # all 400 at once
+    assert len(rep.pulses) == 256
+    start = tr.cycle_of(rep.started_at_ms * 1000)
+    got = [p for p in fwtrace.level_pulses(tr, 400) if p.start >= start]     # not the frame
+    assert [(p.index, p.on_slots) for p in got] == \
+        [(q.row * 20 + q.col, q.level) for q in big.pulses]
+    # 512-byte chunks at 1 Mbaud, back to back: the receive ring never dropped a byte
+    assert sim.peeked(tr) == {"vt_uart_overruns": 0}
+
+
+
+@pytest.mark.parametrize("profile, pulse, says", [
+    (PAD, Pulse(row=3, col=7, onset_ms=40, duration_ms=50, level=11),
+     "pulse 2 (actuator row 3, col 7, at 40 ms): level 11 is above the device's highest, 10"),
+    (SMA, Pulse(row=4, col=1, onset_ms=40, duration_ms=50,
+                train=PulseTrain(amplitude_v=2.5, frequency_hz=40, pulse_width_ms=1.0)),
+     "pulse 2 (actuator row 4, col 1, at 40 ms): amplitude 2.5 V is above the device's 2 V"),
+])
+def test_a_schedule_past_the_chips_limits_is_refused_at_upload(profile, pulse, says):
+    """What the host's safety check stops never gets this far; a schedule that does (another
+    program's, or one played past the check) is refused by the chip, named, and not played."""
+    ok = Pulse(row=0, col=0, onset_ms=0, duration_ms=50,
+               level=5 if profile is PAD else None,
+               train=None if profile is PAD else PulseTrain(amplitude_v=1.0, frequency_hz=40,
+                                                            pulse_width_ms=1.0))
+    s = Schedule(device=profile.name, pulses=[ok, pulse])
+    with AvrSimulator(profile.name) as sim:
+        with open_device(link(sim), profile) as dev:
+            with pytest.raises(DeviceError) as e:
+                dev._call(lambda ln: dev._play_device(ln, s, s.sorted()))     # past the check
+            assert dev.play(Schedule(device=profile.name, pulses=[ok])).pulses  # still usable
+        tr = trace_of(sim)
+    assert says in str(e.value) and "nothing of it was played" in str(e.value)
+    if profile is PAD:
+        on = fwtrace.chain_outputs(tr, 400).bits
+        assert not on[:, 3 * 20 + 7].any()
+    else:
+        assert [t.index for t in fwtrace.trains(tr)] == [0]
 
 # --------------------------------------------------------------------------- off
 
@@ -295,7 +356,7 @@ def test_damaged_bytes_never_actuate_wrongly(rate):
     wanted = {(p.row * 6 + p.col, p.level) for p in s.pulses}
     plays = failed = 0
     with AvrSimulator("vest_6x8", seed=int(1 / rate)) as sim:
-        with open_device(f"serial:{sim.port}", VEST, heartbeat_ms=600) as dev:
+        with open_device(link(sim, 1000), VEST) as dev:
             sim.command(f"faults {rate} {rate} {rate}")
             for _ in range(8):
                 plays += 1

@@ -41,9 +41,10 @@ def session(tmp_path_factory):
         assert first.startswith("emulating sma_5x5 with the reference firmware's ATmega2560"), \
             first + emu.stderr.read()
         hint = emu.stdout.readline()
-        # A heartbeat period of a second, as on a busy lab computer: the simulated chip can
-        # fall behind the wall clock by a tenth of a second when the machine is loaded.
-        port = hint.split("--device ")[1].split()[0] + ",heartbeat_ms=1000"
+        # the device exactly as suggested (a slower heartbeat and a longer wait for replies:
+        # the simulated chip can fall behind the wall clock on a loaded machine)
+        port = hint.split("--device ")[1].split()[0]
+        assert port.endswith(",heartbeat_ms=1000,reply_ms=250"), hint
 
         run = subprocess.run(
             [sys.executable, "-m", "vtexp", "run", str(STUDY), "--participant", "01",

@@ -47,30 +47,6 @@ void vt_cobs_dec_init(vt_cobs_dec *d, uint8_t *buf, uint16_t cap)
     d->code = d->left = d->started = d->over = 0;
 }
 
-static void store(vt_cobs_dec *d, uint8_t b)
-{
-    if (d->len >= d->cap)
-        d->over = 1;
-    else
-        d->buf[d->len++] = b;
-}
-
-void vt_cobs_dec_byte(vt_cobs_dec *d, uint8_t b)
-{
-    if (d->over)
-        return;                           /* too long already: dropped up to the delimiter */
-    if (d->left == 0) {                   /* a code byte: the zero it stands for comes first */
-        if (d->started && d->code != 0xFF)
-            store(d, 0);
-        d->code = b;
-        d->left = (uint8_t)(b - 1);
-        d->started = 1;
-        return;
-    }
-    store(d, b);
-    d->left--;
-}
-
 int16_t vt_cobs_dec_end(vt_cobs_dec *d)
 {
     int16_t r = (int16_t)d->len;

@@ -25,8 +25,33 @@ typedef struct {
 enum { VT_COBS_EMPTY = -1, VT_COBS_BAD = -2, VT_COBS_TOO_LONG = -3 };
 
 void vt_cobs_dec_init(vt_cobs_dec *d, uint8_t *buf, uint16_t cap);
-/* A byte of an encoded frame (never the zero delimiter). */
-void vt_cobs_dec_byte(vt_cobs_dec *d, uint8_t b);
+
+/* A byte of an encoded frame (never the zero delimiter). Inline: it runs for every byte
+ * received, 100,000 times a second at 1 Mbaud. */
+static inline void vt_cobs_dec_byte(vt_cobs_dec *d, uint8_t b)
+{
+    if (d->over)
+        return;                           /* too long already: dropped up to the delimiter */
+    if (d->left == 0) {                   /* a code byte: the zero it stands for comes first */
+        if (d->started && d->code != 0xFF) {
+            if (d->len >= d->cap) {
+                d->over = 1;
+                return;
+            }
+            d->buf[d->len++] = 0;
+        }
+        d->code = b;
+        d->left = (uint8_t)(b - 1);
+        d->started = 1;
+        return;
+    }
+    if (d->len >= d->cap) {
+        d->over = 1;
+        return;
+    }
+    d->buf[d->len++] = b;
+    d->left--;
+}
 /* The delimiter: the decoded length, or VT_COBS_EMPTY (nothing since the last one),
  * VT_COBS_BAD (a block runs past the end), VT_COBS_TOO_LONG (more than cap bytes).
  * The decoder is ready for the next frame. */

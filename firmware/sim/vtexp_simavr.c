@@ -17,7 +17,8 @@
  *    edge of PB4, the chain's RCK or CS/LD, with the SPI bytes "d" shifted since the
  *    previous one), "oe" (PB5, with its pull-up: 1 = outputs disabled), "sync" (PB6),
  *    "port" (the SMA gate ports A, C, L and G bit 0), "rx0"/"tx0" (a frame delimiter
- *    into / out of the UART), "reset", "wall" (wall-clock ns, every 100 ms), and at
+ *    into / out of the UART; "rx0" with "n", the bytes since the previous one: the
+ *    frame's length), "reset", "wall" (wall-clock ns, every 100 ms), and at
  *    the end "stack" (deepest stack, bytes) and "peek" (memory asked for); "clock" when
  *    the firmware starts Timer1 (the cycle its device time 0 counts from);
  *  - injects line faults (each byte, both directions: dropped, altered, or followed by
@@ -127,10 +128,15 @@ static int mangle(uint8_t b, uint8_t out[2])
 
 static void feed_uart(void)
 {
+    static unsigned since_zero;
     while (!xoff && in_tail != in_head) {
         uint8_t b = in_q[in_tail++ & 0xFFFF];
-        if (b == 0)
-            trace_line("\"e\":\"rx0\"");
+        if (b == 0) {
+            trace_line("\"e\":\"rx0\",\"n\":%u", since_zero);
+            since_zero = 0;
+        } else {
+            since_zero++;
+        }
         avr_raise_irq(uart_in, b);
     }
 }

@@ -262,7 +262,13 @@ def _emulate_c_firmware(args: argparse.Namespace, profile) -> int:
         what = "the reference firmware built for this computer"
     port = proc.start()
     out(f"emulating {profile.name} with {what} on {port}")
-    out(f"use it with --device serial:{port}   (Ctrl-C to stop)")
+    if args.firmware == "avr":
+        # the simulated chip can fall behind the wall clock on a busy computer: a slower
+        # heartbeat and a longer wait for replies keep that from looking like a lost link
+        out(f"use it with --device serial:{port},heartbeat_ms=1000,reply_ms=250   "
+            "(Ctrl-C to stop)")
+    else:
+        out(f"use it with --device serial:{port}   (Ctrl-C to stop)")
     try:
         while proc.proc is not None and proc.proc.poll() is None:
             time.sleep(0.2)

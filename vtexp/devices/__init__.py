@@ -7,7 +7,8 @@ Specs for :func:`open_device` (and ``--device`` on the command line):
   on any port pyserial opens: ``serial:/dev/ttyACM0``, ``serial:COM3``,
   ``serial:/dev/pts/4``, ``serial:socket://host:7000``; link settings after
   commas: ``serial:/dev/ttyACM0,baud=115200,heartbeat_ms=500,watchdog_ms=1000``
-  (:data:`SERIAL_OPTIONS`);
+  (:data:`SERIAL_OPTIONS`; ``reply_ms`` is how long a reply is waited for
+  before a request is sent again, beyond the frame's own time on the line);
 - ``emulator``: the same serial backend talking to an emulated device that
   it starts on a pseudo-terminal (byte-exact, no hardware).
 
@@ -29,7 +30,8 @@ if TYPE_CHECKING:
 BACKENDS = ("sim", "serial", "emulator")
 #: ``serial:PORT,KEY=VALUE,...``: what may follow the port, and the SerialDevice argument.
 SERIAL_OPTIONS = {"baud": "baudrate", "heartbeat_ms": "heartbeat_ms",
-                  "watchdog_ms": "watchdog_ms", "timing": "timing"}
+                  "watchdog_ms": "watchdog_ms", "reply_ms": "reply_timeout_ms",
+                  "timing": "timing"}
 
 
 def _serial_options(arg: str) -> tuple[str, dict[str, Any]]:

@@ -226,6 +226,9 @@ class AvrSimulator(_Process):
 
     name = "the ATmega2560 in simavr"
 
+    #: firmware variables read at the end of a run (``Trace.peeks``; see :meth:`peeked`)
+    WATCH = {"vt_uart_overruns": 2}
+
     def __init__(self, profile: str | None, *, trace: Path | None = None,
                  faults: tuple[float, float, float] = (0.0, 0.0, 0.0), seed: int = 0,
                  elf: Path | None = None):
@@ -243,11 +246,22 @@ class AvrSimulator(_Process):
         argv = [str(out / "sim" / "vtexp-simavr"), str(self.elf), "--trace", str(trace),
                 "--drop", str(faults[0]), "--corrupt", str(faults[1]), "--insert",
                 str(faults[2]), "--seed", str(seed)]
+        self._watch: dict[int, tuple[str, int]] = {}
         try:
             argv += ["--stack-from", hex(symbol(self.elf, "__bss_end"))]
+            for name, size in self.WATCH.items():
+                addr = symbol(self.elf, name)
+                self._watch[addr] = (name, size)
+                argv += ["--peek", f"{addr:#x}:{size}"]
         except (KeyError, OSError, subprocess.CalledProcessError):
             pass
         super().__init__(argv, trace)
+
+    def peeked(self, trace) -> dict[str, int]:
+        """The watched firmware variables at the end of the run (little-endian), e.g.
+        ``vt_uart_overruns``: bytes the UART receive ring had to drop."""
+        return {name: int.from_bytes(trace.peeks[a][:size], "little")
+                for a, (name, size) in self._watch.items() if a in trace.peeks}
 
 
 class HostFirmware(_Process):

@@ -41,6 +41,7 @@ class Trace:
     sync: list[tuple[int, int]] = field(default_factory=list)
     ports: list[tuple[int, str, int]] = field(default_factory=list)
     rx0: list[int] = field(default_factory=list)
+    rx_frames: list[tuple[int, int]] = field(default_factory=list)   # (cycle, encoded bytes)
     tx0: list[int] = field(default_factory=list)
     resets: list[int] = field(default_factory=list)
     wall: list[tuple[int, int]] = field(default_factory=list)
@@ -78,6 +79,8 @@ class Trace:
                     t.ports.append((c, d["p"], d["v"]))
                 elif e == "rx0":
                     t.rx0.append(c)
+                    if d.get("n"):
+                        t.rx_frames.append((c, d["n"]))
                 elif e == "tx0":
                     t.tx0.append(c)
                 elif e == "reset":

@@ -42,7 +42,7 @@ from ..model import (
 )
 from . import wire
 from .base import STOP_POLL_S, DeviceBase
-from .link import DeviceLost, Link
+from .link import DeviceLost, DeviceRefused, Link
 from .wire import (
     Ack,
     AllOff,
@@ -372,10 +372,14 @@ class SerialDevice(DeviceBase):
                               "a shorter schedule.")
         self._play_id = (self._play_id + 1) & 0xFFFF
         pid = self._play_id
-        link.expect(UploadBegin(pid, len(wp), self._drive), Ack)
         per = max(1, (self._payload_budget() - 5) // UploadChunk.pulse_size(self._drive))
-        for k in range(0, len(wp), per):
-            link.expect(UploadChunk(pid, k, self._drive, tuple(wp[k:k + per])), Ack)
+        k = 0
+        try:
+            link.expect(UploadBegin(pid, len(wp), self._drive), Ack)
+            for k in range(0, len(wp), per):
+                link.expect(UploadChunk(pid, k, self._drive, tuple(wp[k:k + per])), Ack)
+        except DeviceRefused as e:
+            raise DeviceError(self._refusal(e.nak, pulses, wp, k)) from None
         st = _PlayState(pid, len(wp), [None] * len(wp))
         self._current = st
         self._check_stop()                  # stopped during the upload: nothing is played
@@ -393,6 +397,59 @@ class SerialDevice(DeviceBase):
                   for p, t in zip(pulses, st.onsets)]
         return PlayReport(device=self.profile.name, started_at_ms=start_us / 1000.0,
                           duration_ms=schedule.duration_ms, pulses=report)
+
+    def _refusal(self, nak: wire.Nak, pulses: list[Pulse], wp: list[WirePulse],
+                 first: int) -> str:
+        """What a NAK to a schedule's upload means, naming the pulse (actuator, time) and
+        the device's limit it broke. Nothing of a refused schedule is played."""
+        h = self.hello
+        assert h is not None
+        head = f"the device on {self.port} refused the schedule ({len(wp)} pulses)"
+        tail = "; nothing of it was played."
+        r = nak.reason
+        if r == NakReason.TOO_LARGE:
+            return f"{head}: it holds at most {nak.detail} pulses{tail}"
+        if r == NakReason.BUSY:
+            return f"{head}: it is still playing schedule {nak.detail}{tail}"
+        if r == NakReason.WRONG_DRIVE:
+            return (f"{head}: it is driven by {DRIVE_NAMES.get(nak.detail, nak.detail)}, "
+                    f"not {self.profile.drive.kind}{tail}")
+        if r == NakReason.OUT_OF_ORDER and nak.detail < len(pulses):
+            q = pulses[nak.detail]
+            return (f"{head}: pulse {nak.detail + 1} (actuator row {q.row}, col {q.col}, at "
+                    f"{q.onset_ms:g} ms) starts before the pulse sent before it{tail}")
+        if r == NakReason.OUT_OF_RANGE:
+            for j in range(first, len(wp)):
+                w, q = wp[j], pulses[j]
+                if w.index != nak.detail:
+                    continue
+                where = (f"pulse {j + 1} (actuator row {q.row}, col {q.col}, at "
+                         f"{q.onset_ms:g} ms)")
+                s = w.setting
+                if w.index >= h.rows * h.cols:
+                    why = f"the device has {h.rows}x{h.cols} actuators"
+                elif isinstance(s, wire.Level):
+                    if s.level <= h.max_level:
+                        continue
+                    why = f"level {s.level} is above the device's highest, {h.max_level}"
+                elif s.amplitude_mv > h.max_amplitude_mv:
+                    why = (f"amplitude {s.amplitude_mv / 1000:g} V is above the device's "
+                           f"{h.max_amplitude_mv / 1000:g} V")
+                elif s.amplitude_mv and s.frequency_chz > h.max_frequency_chz:
+                    why = (f"frequency {s.frequency_chz / 100:g} Hz is above the device's "
+                           f"{h.max_frequency_chz / 100:g} Hz")
+                elif s.amplitude_mv and s.width_us > h.max_width_us:
+                    why = (f"pulse width {s.width_us / 1000:g} ms is above the device's "
+                           f"{h.max_width_us / 1000:g} ms")
+                elif s.amplitude_mv and s.width_us * s.frequency_chz >= 100_000_000:
+                    why = (f"pulse width {s.width_us / 1000:g} ms fills the whole period of "
+                           f"{s.frequency_chz / 100:g} Hz")
+                elif w.duration_us + w.onset_us > 0xFFFFFFFF:
+                    why = "it ends more than 71 minutes after the start"
+                else:
+                    continue
+                return f"{head}: {where}: {why}{tail}"
+        return (f"{head}: {NakReason.NAMES.get(r, r)} (detail {nak.detail}){tail}")
 
     def _wait_done(self, link: Link, st: _PlayState, duration_ms: float) -> None:
         """Wait for PLAY_DONE; if that event was lost, ask for the status instead.

@@ -12,7 +12,8 @@ extern volatile uint32_t vt_tick_us_lo, vt_tick_us_hi;  /* the time of tick vt_t
 /* Set by the tick interrupt when the core has something to see (a set applied, the
  * watchdog fired): the main loop then calls vt_poll() at once. */
 extern volatile uint8_t vt_out_event;
-void vt_clock_init(uint16_t tick_us);
+/* prepare_at: Timer1 counts into each tick at which vt_out_prepare() runs (0: never). */
+void vt_clock_init(uint16_t tick_us, uint16_t prepare_at);
 /* The first tick at or after t; the time of tick k (both near now). */
 uint32_t vt_clock_tick_for(uint64_t t_us);
 uint64_t vt_clock_tick_time(uint32_t k);
@@ -36,8 +37,17 @@ static inline uint64_t vt_clock_now_at(uint16_t c)
 
 /* ---- UART0 at 1 Mbaud (uart.c): interrupt-driven rings */
 void vt_uart_init(void);
-uint8_t vt_uart_available(void);
-uint8_t vt_uart_get(void);
+extern volatile uint8_t vt_rx_ring[256];
+extern volatile uint8_t vt_rx_head, vt_rx_tail;
+/* Inline: at 1 Mbaud a byte comes every 160 cycles, calls cost too much per byte. */
+static inline uint8_t vt_uart_available(void) { return vt_rx_head != vt_rx_tail; }
+static inline uint8_t vt_uart_get(void)
+{
+    uint8_t t = vt_rx_tail;
+    uint8_t b = vt_rx_ring[t];
+    vt_rx_tail = (uint8_t)(t + 1);
+    return b;
+}
 /* Queue a byte to send; waits while the transmit ring is full. */
 void vt_uart_put(uint8_t byte);
 /* bytes that arrived while the receive ring was full (a host that does not wait) */
@@ -50,6 +60,8 @@ void vt_out_init(void);
 /* Called first thing by the tick interrupt: latch the outputs prepared at the last
  * tick. Then the port's own work, with interrupts enabled again. */
 void vt_out_tick(void);
+/* Called by Timer1's compare B, if the port asked for it: prepare the next tick. */
+void vt_out_prepare(void);
 
 /* ---- the watchdog deadline (main.c), checked by the tick interrupt */
 extern volatile uint8_t vt_deadline_armed;

@@ -20,14 +20,15 @@ volatile uint8_t vt_out_event;
 
 static inline uint64_t tick_us(void) { return ((uint64_t)vt_tick_us_hi << 32) | vt_tick_us_lo; }
 
-void vt_clock_init(uint16_t tick_us)
+void vt_clock_init(uint16_t tick_us, uint16_t prepare_at)
 {
     TCCR1A = 0;
     TCCR1B = 0;
     TCNT1 = 0;
     OCR1A = (uint16_t)(2 * tick_us - 1);
-    TIFR1 = _BV(OCF1A);
-    TIMSK1 = _BV(OCIE1A);
+    OCR1B = prepare_at;                       /* written once, like OCR1A */
+    TIFR1 = _BV(OCF1A) | _BV(OCF1B);
+    TIMSK1 = _BV(OCIE1A) | (prepare_at ? _BV(OCIE1B) : 0);
     TCCR1B = _BV(WGM12) | _BV(CS11);          /* CTC on OCR1A, clk/8 */
 }
 

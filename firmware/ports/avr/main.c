@@ -65,10 +65,15 @@ ISR(TIMER1_COMPA_vect)
     vt_out_tick();
 }
 
+ISR(TIMER1_COMPB_vect)
+{
+    vt_out_prepare();
+}
+
 int main(void)
 {
     vt_out_init();
-    vt_clock_init(VT_TICK_US);
+    vt_clock_init(VT_TICK_US, VT_PREPARE_AT);
     vt_uart_init();
     set_sleep_mode(SLEEP_MODE_IDLE);
     wdt_enable(WDTO_120MS);

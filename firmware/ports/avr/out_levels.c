@@ -7,11 +7,11 @@
  * outputs for each slot are kept as bit planes, one bit per actuator, in the chain's
  * byte order, so a tick only shifts one plane out.
  *
- * Timing: at each tick the interrupt first pulses RCK, which latches the plane
- * shifted out at the previous tick, so every output change happens at the tick
- * itself (a few cycles after it), then shifts out the plane for the next tick.
- * A set of changes (vt_hal_stage) is prepared in the second set of planes and
- * committed for a tick; the tick before it shifts from the new set. A set with
+ * Timing: at each tick the interrupt pulses RCK, which latches the plane shifted out
+ * during the previous tick, so every output change happens at the tick itself (a few
+ * cycles after it); 85 % into the tick, Timer1's compare B shifts out the plane for the
+ * next tick. A set of changes (vt_hal_stage) is prepared in the second set of planes
+ * and committed for a tick; the compare B before it shifts from the new set. A set with
  * onsets restarts the carrier at slot 0 (so each onset starts a whole period, and
  * the onset is the latch edge) and raises the sync output with the latch.
  *
@@ -116,8 +116,15 @@ void vt_out_tick(void)
     }
     if (oe_hold && oe_hold != 0xFF && --oe_hold == 0)
         oe_on();
-    /* 3. The next tick's plane; the UART may interrupt this (never the tick itself: a
-     * shift of 50 bytes takes about 80 us of the 1000). */
+}
+
+/* Timer1 compare B, 85 % into each tick: shift out the plane for the next tick. Late in
+ * the tick, so that a set committed up to then still makes the next tick (instants 1 ms
+ * apart are both on time); the UART may interrupt it, and it is done (about 80 us for
+ * 50 bytes) well before the next latch. */
+void vt_out_prepare(void)
+{
+    uint32_t k = vt_ticks;
     sei();
     uint8_t use = commit_state == SCHEDULED && (int32_t)(commit_tick - (k + 1)) <= 0;
     uint8_t next = (use && commit_rephase) ? 0 : (uint8_t)(slot + 1 == SLOTS ? 0 : slot + 1);
@@ -148,12 +155,26 @@ void vt_hal_stage(uint16_t index, const vt_setting *s)
 
 /* The tick a set for time t goes out at: the first at or after t, and never before the
  * tick after next (the next tick's outputs are already prepared). */
+/* The earliest tick a set committed now can go out at: the next, unless its plane has
+ * been shifted out already (compare B served), then the one after. Interrupts off. */
+static uint32_t earliest_tick(void)
+{
+    uint32_t k = vt_ticks;
+    if (TIFR1 & _BV(OCF1A))
+        return k + 2;                         /* tick k + 1 began; its compare B is to come */
+    if (TCNT1 < OCR1B || (TIFR1 & _BV(OCF1B)))
+        return k + 1;                         /* the next tick's plane is not shifted yet */
+    return k + 2;
+}
+
+/* The tick a set for time t goes out at: the first at or after t, and not before the
+ * earliest. */
 static uint32_t commit_tick_for(uint64_t t_us)
 {
     uint32_t k = vt_clock_tick_for(t_us);
     uint8_t sreg = SREG;
     cli();
-    uint32_t earliest = vt_ticks + 2;
+    uint32_t earliest = earliest_tick();
     SREG = sreg;
     return (int32_t)(k - earliest) < 0 ? earliest : k;
 }
@@ -164,8 +185,9 @@ void vt_hal_commit_at(uint64_t t_us, uint8_t onsets)
 {
     uint32_t k = commit_tick_for(t_us);
     cli();
-    if ((int32_t)(k - (vt_ticks + 2)) < 0)
-        k = vt_ticks + 2;
+    uint32_t earliest = earliest_tick();      /* time has passed since: check again */
+    if ((int32_t)(k - earliest) < 0)
+        k = earliest;
     commit_tick = k;
     commit_rephase = onsets;
     commit_state = SCHEDULED;

@@ -348,6 +348,8 @@ static uint32_t commit_tick_for(uint64_t t_us)
 
 uint64_t vt_hal_commit_time(uint64_t t_us) { return vt_clock_tick_time(commit_tick_for(t_us)); }
 
+void vt_out_prepare(void) {}                  /* the tick interrupt prepares the next tick */
+
 void vt_hal_commit_at(uint64_t t_us, uint8_t onsets)
 {
     uint32_t k = commit_tick_for(t_us);

@@ -7,8 +7,8 @@
 #include "avr_port.h"
 #include "board.h"
 
-static volatile uint8_t rx_ring[256];
-static volatile uint8_t rx_head, rx_tail;
+volatile uint8_t vt_rx_ring[256];
+volatile uint8_t vt_rx_head, vt_rx_tail;
 static volatile uint8_t tx_ring[128];
 static volatile uint8_t tx_head, tx_tail;
 volatile uint16_t vt_uart_overruns;
@@ -24,25 +24,16 @@ void vt_uart_init(void)
 ISR(USART0_RX_vect)
 {
     uint8_t b = UDR0;
-    uint8_t h = rx_head;
+    uint8_t h = vt_rx_head;
     uint8_t n = (uint8_t)(h + 1);
-    if (n == rx_tail) {
+    if (n == vt_rx_tail) {
         vt_uart_overruns++;
         return;
     }
-    rx_ring[h] = b;
-    rx_head = n;
+    vt_rx_ring[h] = b;
+    vt_rx_head = n;
 }
 
-uint8_t vt_uart_available(void) { return rx_head != rx_tail; }
-
-uint8_t vt_uart_get(void)
-{
-    uint8_t t = rx_tail;
-    uint8_t b = rx_ring[t];
-    rx_tail = (uint8_t)(t + 1);
-    return b;
-}
 
 ISR(USART0_UDRE_vect)
 {

@@ -48,11 +48,13 @@
 
 #if VT_DRIVE == VT_DRIVE_LEVEL
 #define VT_TICK_US 1000             /* 1 kHz: 10 PWM slots make the 100 Hz carrier */
+#define VT_PREPARE_AT 1700          /* compare B, 850 us into the tick: the next plane */
 #define VT_CHAIN_BYTES ((VT_MAX_ACTUATORS + 7) / 8)     /* TPIC6B595s in the chain */
 /* UART rings, two sets of 10 bit planes (active, staged), the port's variables */
 #define VT_PORT_RAM_BYTES (256 + 128 + 2 * 10 * VT_CHAIN_BYTES + 64)
 #else
 #define VT_TICK_US 100              /* 10 kHz: pulse-train edges on a 100 us grid */
+#define VT_PREPARE_AT 0             /* the tick interrupt prepares the next tick itself */
 #define VT_DAC_CHIPS 4              /* LTC2656 octal DACs, daisy-chained */
 /* UART rings; per pin its train (24 B), staged setting (12 B) and DAC codes (4 B); the
  * DAC transfers planned for a commit (8 x 16 B); the port's variables */
