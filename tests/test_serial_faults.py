@@ -241,6 +241,39 @@ def test_host_killed_mid_trial_device_turns_off_by_itself(emu):
     assert emu.actuations()[-1].cause == "watchdog"
 
 
+
+def test_a_host_starved_of_the_cpu_is_no_pulled_cable(emu):
+    """The host process stopped for 400 ms (SIGSTOP: a loaded lab PC, a swapping disk):
+    more than the heartbeat period, less than the watchdog it asked for. Nothing was sent
+    meanwhile, so no answer was missed: the play goes on and the session with it."""
+    code = ("from vtexp.devices import open_device; "
+            "from vtexp.model import DeviceProfile, Schedule, Pulse; "
+            "p = DeviceProfile.load('vest_6x8'); "
+            f"d = open_device('serial:{emu.port},heartbeat_ms={HEARTBEAT_MS},watchdog_ms=1000', p); "
+            "d.open(); print('open', flush=True); "
+            "r = d.play(Schedule(device='vest_6x8', pulses=[Pulse(row=0, col=c, onset_ms=300 * c, "
+            "duration_ms=200, level=2) for c in range(6)])); "
+            "d.play(Schedule(device='vest_6x8', pulses=[Pulse(row=1, col=0, onset_ms=0, "
+            "duration_ms=50, level=1)])); d.close(); print('played', len(r.pulses), flush=True)")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    try:
+        assert proc.stdout.readline().strip() == "open"
+        deadline = time.monotonic() + 5
+        while emu.outputs()[0].is_off and time.monotonic() < deadline:
+            time.sleep(0.005)
+        os.kill(proc.pid, signal.SIGSTOP)
+        time.sleep(0.4)
+        os.kill(proc.pid, signal.SIGCONT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert out.strip() == "played 6"
+    assert emu.firmware.counters.watchdog_trips == 0
+
 # --------------------------------------------------------------------------- handshake
 
 def test_device_of_another_geometry_is_refused_at_handshake():
@@ -309,7 +342,9 @@ def test_sma_trains_survive_a_noisy_line():
 # --------------------------------------------------------------------------- link settings
 
 def test_link_settings_after_the_port_reach_the_device(emu):
-    dev = open_device(f"serial:{emu.port},heartbeat_ms=400,watchdog_ms=900,baud=115200", VEST)
+    dev = open_device(f"serial:{emu.port},heartbeat_ms=400,watchdog_ms=900,baud=115200,"
+                      "reply_ms=80", VEST)
+    assert dev.reply_timeout_s == 0.08
     with dev:
         info = dev.info()
         assert (info.details["heartbeat_ms"], info.details["watchdog_ms"]) == (400, 900)
@@ -322,6 +357,7 @@ def test_link_settings_after_the_port_reach_the_device(emu):
     ("serial:/dev/ttyACM0,watchdog_ms=0", "watchdog_ms must be a whole number above 0"),
     ("serial:/dev/ttyACM0,baud=fast", "baud must be a whole number above 0"),
     ("serial:/dev/ttyACM0,timing=soon", "timing must be device or host"),
+    ("serial:/dev/ttyACM0,reply_ms=-5", "reply_ms must be a whole number above 0"),
 ])
 def test_a_wrong_link_setting_is_named(spec, says):
     from vtexp.errors import InputError

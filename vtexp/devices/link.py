@@ -9,8 +9,11 @@ re-sent after a timeout or a ``NAK BAD_FRAME``; the device never executes a
 repeated request twice, so a retry cannot actuate twice.
 
 Loss of the device (the port fails, or nothing valid arrives for the
-silence limit, just under one heartbeat period) is latched in
-:attr:`Link.lost`; every waiting or later call raises :class:`DeviceLost`.
+silence limit, just under one heartbeat period, after a frame was sent) is
+latched in :attr:`Link.lost`; every waiting or later call raises
+:class:`DeviceLost`. Silence is counted from the first frame sent since the
+device's last frame: a host that was starved of the CPU and sent nothing has no
+answer to miss (the device's watchdog, ``watchdog_ms``, judges that side).
 """
 
 from __future__ import annotations
@@ -25,10 +28,13 @@ from ..errors import DeviceError
 from . import wire
 from .wire import Message, Nak, NakReason
 
-# Silence longer than this fraction of the heartbeat period means the device is gone.
-# Heartbeats go out every fifth of the period, so it takes four lost replies in a row;
-# the reader checks at least every twentieth, so loss is noticed within one period.
-SILENCE_FRACTION = 0.8
+# Silence after a request longer than this fraction of the heartbeat period means the
+# device is gone. Heartbeats go out every fifth of the period (a lost one is sent again
+# three times), so it takes two heartbeats and their retries unanswered in a row; the
+# first unanswered one goes out at most a fifth of a period after the device's last
+# frame, and the reader checks at least every twentieth, so loss is noticed within
+# 0.2 + 0.6 + 0.05 of a period.
+SILENCE_FRACTION = 0.6
 HEARTBEAT_FRACTION = 0.2
 CHECK_FRACTION = 0.05
 
@@ -115,6 +121,10 @@ class Link:
         self._dev_seq: int | None = None
         self.last_rx = time.monotonic()
         self.last_tx = time.monotonic()
+        # When the first frame sent since the last valid frame received went out: the
+        # device is judged silent from then, not from its last frame, so a host that was
+        # itself starved of the CPU (and sent nothing) does not take that for a pulled cable.
+        self.unanswered_since: float | None = None
         self._closing = threading.Event()
         self._reader_thread: threading.Thread | None = None
         self._hb_thread: threading.Thread | None = None
@@ -129,6 +139,7 @@ class Link:
         """Send heartbeats and watch for silence from now on (after the handshake)."""
         self.heartbeat_s = period_ms / 1000.0
         self.last_rx = time.monotonic()
+        self.unanswered_since = None
         self._hb_thread = threading.Thread(target=self._heartbeat_loop, daemon=True,
                                            name=f"vtexp-link-heartbeat {self.name}")
         self._hb_thread.start()
@@ -244,6 +255,8 @@ class Link:
         return reply
 
     def _write(self, frame: bytes, msg: Message) -> None:
+        if self.unanswered_since is None:
+            self.unanswered_since = time.monotonic()      # before the write: a reply can't precede it
         try:
             with self._tx_lock:
                 self.port.write(frame)
@@ -271,12 +284,13 @@ class Link:
                 for item in self._reader.feed(data):
                     self._dispatch(item)
             limit = self.silence_limit_s
-            if limit is not None and self.lost is None:
-                quiet = time.monotonic() - self.last_rx
+            since = self.unanswered_since
+            if limit is not None and self.lost is None and since is not None:
+                quiet = time.monotonic() - since
                 if quiet > limit:
                     self.mark_lost(f"nothing valid came back from the device on {self.name} "
-                                   f"for {quiet * 1000:.0f} ms (heartbeat period "
-                                   f"{self.heartbeat_s * 1000:.0f} ms)")
+                                   f"for {quiet * 1000:.0f} ms after a request (heartbeat "
+                                   f"period {self.heartbeat_s * 1000:.0f} ms)")
                     return
 
     def _dispatch(self, item: tuple[int, Message] | wire.WireError) -> None:
@@ -287,6 +301,7 @@ class Link:
             return
         seq, msg = item
         self.last_rx = time.monotonic()
+        self.unanswered_since = None
         self.stats.rx_frames += 1
         if self.trace:
             self.trace("to_host", msg)
