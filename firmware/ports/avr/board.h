@@ -21,7 +21,7 @@
  * outputs stay off through reset and programming */
 #define OE_PORT PORTB
 #define OE_BIT PB5
-/* TTL sync out to an EEG amplifier's trigger input: PB6 (D12), high for 1 ms at each onset */
+/* TTL sync out to an EEG amplifier's trigger input: PB6 (D12), high for one output tick at each onset instant (1 ms for levels, 100 us for trains) */
 #define SYNC_PORT PORTB
 #define SYNC_BIT PB6
 
