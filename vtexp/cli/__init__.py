@@ -11,6 +11,7 @@ module                 commands
 ``simulate``           ``simulate``
 ``encode``             ``encode``
 ``device``             ``device list|check|monitor|emulate``
+``live``               ``live`` (a camera felt live), ``live-replay``
 =====================  ==================================================
 
 Each module has a ``register(sub)`` that adds its parsers, and imports what a
@@ -31,11 +32,11 @@ import sys
 
 from .. import __version__
 from ..errors import VtexpError
-from . import analyze, demo, device, encode, experiment, run, simulate, stats
+from . import analyze, demo, device, encode, experiment, live, run, simulate, stats
 from ._io import err
 
 #: The command groups, in the order ``vtexp --help`` lists them.
-GROUPS = (experiment, run, analyze, stats, encode, device, demo, simulate)
+GROUPS = (experiment, run, analyze, stats, encode, live, device, demo, simulate)
 
 
 def build_parser() -> argparse.ArgumentParser:
