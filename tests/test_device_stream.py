@@ -46,6 +46,7 @@ def test_a_pin_held_on_by_a_stream_is_cut_and_rests_on_the_device(spec):
     record of what it drove never breaks a limit, and the degradations are reported."""
     kinds = set()
     with open_device(spec, SMA) as dev:
+        margin = dev._stream_margin()
         t_end = time.monotonic() + 1.5
         while time.monotonic() < t_end:
             rep = dev.stream({(1, 1): TRAIN, (1, 2): TRAIN, (2, 1): TRAIN, (2, 2): TRAIN})
@@ -60,7 +61,34 @@ def test_a_pin_held_on_by_a_stream_is_cut_and_rests_on_the_device(spec):
     sched = outputs_schedule(changes, SMA)
     check_schedule(sched, SMA)
     on = [p for p in sched.pulses if (p.row, p.col) == (1, 1)]
-    assert on[0].duration_ms > 900                        # held on, then cut before 1000 ms
+    # held on until the guard cut it (max_on_ms less the margin its watchdog needs);
+    # check_schedule above holds it to max_on_ms
+    assert on[0].duration_ms > 1000 - margin - 50
+
+
+def test_a_stalled_host_is_switched_off_by_the_devices_watchdog_before_any_limit():
+    """The loop stops checking in while a pin is on: no heartbeat keeps the emulated
+    device's session alive, its watchdog switches everything off, well before the pin's
+    max on-time; the next frame says what happened."""
+    from vtexp.errors import DeviceError
+
+    with open_device("emulator", SMA) as dev:
+        rep = dev.stream({(2, 2): TRAIN})
+        time.sleep(0.6)                                  # stalled: no frame, no check-in
+        assert dev.emulator.all_outputs_off()
+        with pytest.raises(DeviceError):
+            dev.stream({(2, 2): TRAIN})
+        history = emulator_changes(dev, SMA)
+    on = [t for t, k, d in history if d is not None]
+    off = [t for t, k, d in history if d is None]
+    assert off[0] - on[0] <= dev.stream_watchdog_ms() + dev.stream_checkin_ms + 20
+    with open_device("sim", SMA) as sim:
+        sim.stream({(2, 2): TRAIN})
+        time.sleep(0.3)
+        with pytest.raises(DeviceError, match="watchdog"):
+            sim.stream({(2, 2): TRAIN})
+        wd = [e for e in sim.history if e.kind == "watchdog"]
+        assert len(wd) == 1 and sim.state.max() == 0
 
 
 def test_a_play_after_a_stream_waits_for_the_pins_to_cool():

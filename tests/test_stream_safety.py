@@ -124,3 +124,12 @@ def test_whatever_is_asked_frame_after_frame_what_is_applied_is_safe(frames, mar
         t = min(t + dt, deadline) if deadline is not None else t + dt
         step(g, {pin: TRAIN for pin in pins}, t, log)
     check_schedule(outputs_schedule(log["changes"], SMA, end_ms=t), SMA)
+
+
+def test_an_off_that_came_after_the_deadline_is_reported_as_an_overrun():
+    g = StreamGuard(SMA)
+    g.commit({(0, 0): TRAIN}, 0.0, 0.5)
+    allowed, notes = g.admit({(0, 0): TRAIN}, 1100.0)      # the host woke up 150 ms late
+    assert allowed == {} and notes[0].kind == "max_on"
+    g.commit(allowed, 1100.0, 1101.0)
+    assert g.overruns == [((0, 0), 1101.0)]

@@ -171,7 +171,9 @@ class Degradation:
     ``max_on`` (on for ``max_on_ms``: switched off, the train cut short),
     ``rest`` (resting after such a cut), ``cooling`` (off less than ``min_off_ms``
     since it last stopped), ``budget`` (more than ``max_simultaneous`` asked for:
-    skipped).
+    skipped); and ``late``: not a degradation but a fault, an actuator that was on
+    longer than ``max_on_ms`` because the frame that switched it off came later than
+    the guard's deadline (a host too busy to keep it).
     """
 
     kind: str
@@ -217,7 +219,7 @@ class StreamGuard:
         self.max_on_ms = lim.max_on_ms
         self.min_off_ms = lim.min_off_ms
         self.budget = lim.max_simultaneous
-        self.margin_ms = min(margin_ms, lim.max_on_ms / 4)
+        self.margin_ms = min(margin_ms, lim.max_on_ms / 2)
         self.rest_ms = rest_ms if rest_ms is not None else max(lim.min_off_ms,
                                                                0.1 * lim.max_on_ms)
         self.last_off_ms = last_off_ms if last_off_ms is not None else {}
@@ -226,6 +228,8 @@ class StreamGuard:
         self._held: dict[Actuator, float] = {}
         self._cut: set[Actuator] = set()
         self._problems: dict[tuple[Actuator, Drive], str | None] = {}
+        #: (actuator, on-time in ms) of every activation that outlasted max_on_ms.
+        self.overruns: list[tuple[Actuator, float]] = []
 
     # -- one frame ---------------------------------------------------------------------------
     def admit(self, desired: Mapping[Actuator, Drive], now_ms: float
@@ -299,7 +303,9 @@ class StreamGuard:
         """Record that ``applied`` is what the array does now (sent at ``before_ms``,
         confirmed by ``after_ms``)."""
         for key in [k for k in self.on_since if k not in applied]:
-            del self.on_since[key]
+            on_ms = after_ms - self.on_since.pop(key)
+            if on_ms > self.max_on_ms:
+                self.overruns.append((key, on_ms))
             self.last_off_ms[key] = after_ms
             if key in self._cut:
                 self.rest_until[key] = after_ms + self.rest_ms + _SLACK_MS

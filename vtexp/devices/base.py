@@ -9,7 +9,7 @@ from typing import Protocol, runtime_checkable
 
 from typing_extensions import Self
 
-from ..errors import SessionAborted
+from ..errors import InputError, SessionAborted
 from ..model import DeviceInfo, DeviceProfile, PlayReport, Schedule
 from ..safety import Actuator, Degradation, Drive, StreamGuard, check_schedule, cooling_wait_ms
 
@@ -104,6 +104,7 @@ class DeviceBase:
         self._guard: StreamGuard | None = None
         self._stream_state: dict[Actuator, Drive] = {}
         self._streaming = False
+        self._alive_at = 0.0
 
     # -- public API -------------------------------------------------------------------------
     def open(self) -> DeviceInfo:
@@ -162,9 +163,31 @@ class DeviceBase:
                 self._info = None
 
     # -- live stream ------------------------------------------------------------------------
-    #: How much earlier than ``max_on_ms`` a stream switches an actuator off: the
-    #: time the frame that does it may take to reach the device.
+    #: How much earlier than ``max_on_ms`` a stream switches an actuator off, on a device
+    #: without a watchdog: the time the frame that does it may take to reach the device.
     stream_margin_ms = 50.0
+    #: A stream's loop checks in (``stream`` or ``stream_alive``) at least this often; on a
+    #: device with a watchdog, nothing keeps the device's session alive once it stops, so
+    #: a stalled host is switched off by the device itself (see ``_stream_margin``).
+    stream_checkin_ms = 50.0
+
+    def stream_watchdog_ms(self) -> float | None:
+        """The device's watchdog while streaming (everything off after this long without a
+        frame from the host), or None if it has none."""
+        return None
+
+    def _stream_margin(self) -> float:
+        """How long before ``max_on_ms`` the guard cuts a train. With a watchdog: the
+        check-in period, the watchdog and 10 ms for the last frame on the wire, so that even
+        if the host stalls right after a frame, the device's watchdog switches every
+        actuator off before any exceeds its on-time."""
+        wd = self.stream_watchdog_ms()
+        return self.stream_margin_ms if wd is None else self.stream_checkin_ms + wd + 10.0
+
+    def stream_alive(self) -> None:
+        """The stream's loop checks in without sending anything (nothing changed)."""
+        self._alive_at = time.monotonic()
+        self._stream_checked_in()
 
     def stream(self, frame: Mapping[Actuator, Drive]) -> StreamReport:
         """Set the outputs now: ``frame`` maps (row, col) to a level or a pulse train;
@@ -174,16 +197,33 @@ class DeviceBase:
         cooling, power budget, one setting's limits, held across frames and across
         plays), which leaves out what is not safe now and says so in the report;
         then only the outputs that change are sent. A frame is needed at least by
-        :meth:`stream_deadline_s` (a train to cut). On any error every actuator is
-        turned off. :meth:`all_off` ends the stream; a :meth:`play` ends it too.
+        :meth:`stream_deadline_s` (a train to cut), and the loop checks in (a frame or
+        :meth:`stream_alive`) at least every :attr:`stream_checkin_ms`: on a device with
+        a watchdog, a loop that stops checking in no longer keeps the device's session
+        alive, and the device switches everything off itself before any on-time limit
+        is reached (the guard cuts trains early enough for that). On any error every
+        actuator is turned off. :meth:`all_off` ends the stream; a :meth:`play` ends it
+        too.
         """
         self.open()
         if self._guard is None:
-            self._guard = StreamGuard(self.profile, self._last_off_ms,
-                                      margin_ms=self.stream_margin_ms)
+            margin = self._stream_margin()
+            if margin > self.profile.limits.max_on_ms / 2:
+                raise InputError(
+                    f"the device's watchdog ({self.stream_watchdog_ms():g} ms) is too long to "
+                    f"stream to {self.profile.name} safely: a train would have to stop "
+                    f"{margin:g} ms before max_on_ms {self.profile.limits.max_on_ms:g}; open it "
+                    "with a shorter heartbeat period", key="--device")
+            self._guard = StreamGuard(self.profile, self._last_off_ms, margin_ms=margin)
         if not self._streaming:
+            self._alive_at = time.monotonic()
             self._streaming = True
             self._stream_started()
+        try:
+            self.stream_alive()
+        except BaseException:
+            self.all_off()
+            raise
         guard = self._guard
         before = self._now_ms()
         allowed, notes = guard.admit(frame, before)
@@ -199,7 +239,15 @@ class DeviceBase:
                 self.all_off()          # ends the stream, marking every actuator off
                 raise
         host_after = time.monotonic() * 1000.0
+        known = len(guard.overruns)
         guard.commit(allowed, before, self._now_ms())
+        late = guard.overruns[known:]
+        if late:
+            (k0, on0) = max(late, key=lambda x: x[1])
+            notes = [*notes, Degradation(
+                "late", tuple(k for k, _ in late),
+                f"late: (row {k0[0]}, col {k0[1]}) was on {on0:.0f} ms, above max_on_ms "
+                f"{guard.max_on_ms:g}: the frame that stopped it came late")]
         self._stream_state = allowed
         return StreamReport(dict(allowed), len(changes), t_device, host_before, host_after,
                             notes)
@@ -251,6 +299,9 @@ class DeviceBase:
 
     def _stream_stopped(self) -> None:
         """The stream ended with every actuator off."""
+
+    def _stream_checked_in(self) -> None:
+        """The loop checked in (a backend that models a watchdog checks it here)."""
 
     def _now_ms(self) -> float:
         """The clock that cooling times are measured on."""

@@ -12,9 +12,9 @@ from the profile, and plays Schedules in one of two ways:
   the device stamps when it applied it (for devices without schedule memory,
   and to measure what device-side timing buys, ``bench/timing.py``).
 
-A live stream (``stream``, ``vtexp live``) sends each frame's changes as one
-sparse ``SET_FRAME`` (or ``SET_FRAME_FULL`` when that is shorter); the ACK's
-time is the device-reported onset.
+A live stream (``stream``, ``vtexp live``) sends each frame's changes as a
+sparse ``SET_FRAME``, actuators switched off listed first; the ACK's time is the
+device-reported onset.
 
 Safety is :class:`~vtexp.devices.base.DeviceBase`'s: every Schedule passes
 ``vtexp.safety`` before a byte is written, and every error path ends in
@@ -508,15 +508,41 @@ class SerialDevice(DeviceBase):
                           duration_ms=schedule.duration_ms, pulses=report)
 
     # -- live stream ------------------------------------------------------------------------
+    def stream_watchdog_ms(self) -> float | None:
+        return float(self.hello.watchdog_ms) if self.hello is not None else float(
+            self.watchdog_ms)
+
+    def _stream_started(self) -> None:
+        # Heartbeats only while the stream's loop checks in: a stalled host goes silent,
+        # and the device's watchdog switches everything off.
+        if self._link is not None:
+            limit = self.stream_checkin_ms / 1000.0
+            self._link.heartbeat_gate = lambda: time.monotonic() - self._alive_at < limit
+
+    def _stream_stopped(self) -> None:
+        if self._link is not None:
+            self._link.heartbeat_gate = None
+
+    def _stream_checked_in(self) -> None:
+        # A loop that stalled may find the session ended: say so at once.
+        if self._link is not None and self._link.lost is not None:
+            raise self._lost(self._link.lost)
+
     def _set_outputs(self, changes) -> float:
+        # Offsets first: a device that applies a frame's changes one after another (or a
+        # frame split in two for its size) never has more actuators on than before or after.
         cols = self.profile.cols
-        wire_changes = sorted((r * cols + c, self._off if d is None else drive_setting(d))
-                              for (r, c), d in changes.items())
+        wire_changes = sorted(((r * cols + c, self._off if d is None else drive_setting(d))
+                               for (r, c), d in changes.items()),
+                              key=lambda ch: (not ch[1].is_off, ch[0]))
         return self._call(lambda link: self._send_outputs(link, wire_changes))
 
     def _send_outputs(self, link: Link, changes: list[tuple[int, Setting]]) -> float:
         applied = None
-        for msg in self._frames(self._outputs, changes):
+        size = wire.SETTINGS[self._drive].SIZE
+        per = max(1, (self._payload_budget() - 3) // (2 + size))
+        for k in range(0, len(changes), per):
+            msg = SetFrame(self._drive, tuple(changes[k:k + per]))
             ack = link.expect(msg, Ack)
             applied = ack.t_us if applied is None else applied
         for i, s in changes:

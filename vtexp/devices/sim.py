@@ -10,7 +10,10 @@ says stop, records how far it got (a ``stopped`` event) and turns all off.
 
 A live stream (``stream``) always takes real time: while it lasts the clock
 follows ``time.monotonic``, and each frame's changes are recorded (a ``frame``
-event with ``{(row, col): drive or None}``) at the time they were applied.
+event with ``{(row, col): drive or None}``) at the time they were applied. Like a
+device's firmware, it has a watchdog while it streams (``stream_watchdog``, ms):
+when the host's loop has not checked in for that long, everything went off then (a
+``watchdog`` event at that time) and the next call raises ``DeviceError``.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import SessionAborted
+from ..errors import DeviceError, SessionAborted
 from ..model import DeviceInfo, DeviceProfile, PlayedPulse, PlayReport, Pulse, Schedule
 from .base import DeviceBase
 
@@ -36,6 +39,7 @@ class SimEvent:
 class SimDevice(DeviceBase):
     profile: DeviceProfile
     realtime: bool = False
+    stream_watchdog: float | None = 100.0
     clock_ms: float = 0.0
     history: list[SimEvent] = field(default_factory=list)
     plays: list[PlayReport] = field(default_factory=list)
@@ -47,6 +51,7 @@ class SimDevice(DeviceBase):
         # Drive level (or amplitude) of each actuator right now; all zero when idle.
         self.state = np.zeros((self.profile.rows, self.profile.cols), dtype=float)
         self._stream_mono: float | None = None
+        self._checkin_ms: float | None = None
 
     def _open(self) -> DeviceInfo:
         self.history.append(SimEvent(self.clock_ms, "open"))
@@ -104,12 +109,27 @@ class SimDevice(DeviceBase):
             self._stream_mono = t
         return self.clock_ms
 
+    def stream_watchdog_ms(self) -> float | None:
+        return self.stream_watchdog
+
     def _stream_started(self) -> None:
         self._stream_mono = time.monotonic()
+        self._checkin_ms = self._now_ms()
 
     def _stream_stopped(self) -> None:
         self._now_ms()
         self._stream_mono = None
+        self._checkin_ms = None
+
+    def _stream_checked_in(self) -> None:
+        now = self._now_ms()
+        last, self._checkin_ms = self._checkin_ms, now
+        wd = self.stream_watchdog
+        if wd is not None and last is not None and now - last > wd:
+            self.state[:] = 0.0
+            self.history.append(SimEvent(last + wd, "watchdog"))
+            raise DeviceError(f"the sim's watchdog switched everything off: the host's loop "
+                              f"was silent for {now - last:.0f} ms (watchdog {wd:g} ms)")
 
     def _set_outputs(self, changes) -> float:
         t = self._now_ms()
