@@ -128,14 +128,18 @@ def cmd_live_replay(args) -> int:
         with device:
             t0 = time.monotonic() - states[0][0] / 1000.0 / args.speed
             for t_ms, state in states:
-                delay = t0 + t_ms / 1000.0 / args.speed - time.monotonic()
-                while delay > 0:
-                    # the guard may need frames between the recorded ones (a train to cut)
-                    step = min(delay, device.stream_deadline_s() or delay)
-                    time.sleep(step)
-                    if step < delay:
+                due = t0 + t_ms / 1000.0 / args.speed
+                while (delay := due - time.monotonic()) > 0:
+                    # Check in with the device as a live loop does; the guard may need
+                    # frames between the recorded ones (a train to cut, a rest that ends).
+                    deadline = device.stream_deadline_s()
+                    time.sleep(min(delay, device.stream_checkin_ms / 2000.0,
+                                   deadline if deadline is not None else delay))
+                    deadline = device.stream_deadline_s()
+                    if deadline is not None and deadline <= 0:
                         device.stream(state_now)
-                    delay = t0 + t_ms / 1000.0 / args.speed - time.monotonic()
+                    elif state_now:
+                        device.stream_alive()
                 rep = device.stream(state)
                 state_now = state
                 for d in rep.degradations:

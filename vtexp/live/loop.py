@@ -14,7 +14,10 @@ order, as often as something happens:
    profile's limits across frames (:class:`~vtexp.safety.StreamGuard`) and sends
    only the outputs that change;
 3. sleep until the next of: a new frame, the cycle's next change, the guard's next
-   deadline, the end of the run.
+   deadline, the end of the run — and never longer than half the device's check-in
+   period (``stream_checkin_ms``): a loop that stops checking in lets the device's
+   watchdog switch everything off. If that happened (the host stalled), the device is
+   opened again and the run goes on (counted as ``reconnects``, said on screen).
 
 It stops at the end of the source, after ``duration_s``, when ``should_stop`` says
 so (the preview's Escape, Ctrl-C), or on an error — a source that cannot be read,
@@ -49,7 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..devices.base import DeviceBase, StreamReport
-from ..errors import InputError, SessionAborted
+from ..errors import DeviceError, InputError, SessionAborted
 from ..safety import Actuator, Drive
 from .encoder import Encoded, LiveEncoder
 from .program import Program, carried_epoch
@@ -96,8 +99,10 @@ class LiveStats:
     frames_empty: int = 0
     latencies_ms: list[float] = field(default_factory=list)
     process_ms: list[float] = field(default_factory=list)
+    deadline_late_ms: list[float] = field(default_factory=list)
     outputs_sent: int = 0
     changes_sent: int = 0
+    reconnects: int = 0
     degradations: Counter = field(default_factory=Counter)
     last_notes: list[str] = field(default_factory=list)
     last_notes_at: float = 0.0
@@ -141,8 +146,15 @@ class LiveStats:
                            if self.process_ms else None,
                            "p95": round(float(np.percentile(self.process_ms, 95)), 3)
                            if self.process_ms else None},
+            "safety_deadlines": {
+                "n": len(self.deadline_late_ms),
+                "late_p99_ms": round(float(np.percentile(self.deadline_late_ms, 99)), 3)
+                if self.deadline_late_ms else None,
+                "late_max_ms": round(max(self.deadline_late_ms), 3)
+                if self.deadline_late_ms else None},
             "outputs_sent": self.outputs_sent,
             "changes_sent": self.changes_sent,
+            "reconnects": self.reconnects,
             "degradations": dict(self.degradations),
             "end": self.end_reason,
         }
@@ -179,7 +191,8 @@ class LiveRun:
                  duration_s: float | None = None, stall_s: float = 2.0,
                  should_stop: Callable[[], bool | str | None] | None = None,
                  sinks: list[Callable[[str, dict], None]] | None = None,
-                 on_snapshot: Callable[[Snapshot], None] | None = None):
+                 on_snapshot: Callable[[Snapshot], None] | None = None,
+                 reconnect: bool = True):
         self.source = source
         self.encoder = encoder
         self.device = device
@@ -188,6 +201,7 @@ class LiveRun:
         self.should_stop = should_stop
         self.sinks = list(sinks or [])
         self.on_snapshot = on_snapshot
+        self.reconnect = reconnect
         self.stats = LiveStats()
         self.clock = ClockMap()
         self.mailbox = LatestFrame()
@@ -220,6 +234,8 @@ class LiveRun:
         capture.start()
         last_desired: dict[Actuator, Drive] | None = None
         pending: _Pending | None = None
+        deadline_at: float | None = None
+        failures = 0
         last_frame_at = st.started
         end_at = st.started + self.duration_s if self.duration_s else math.inf
         switch = sys.getswitchinterval()
@@ -252,17 +268,35 @@ class LiveRun:
                 prog = self.program
                 desired = prog.state_at(prog.phase(now, self.epoch)) if prog else {}
                 deadline = dev.stream_deadline_s()
-                if desired != last_desired or (deadline is not None and deadline <= 0):
-                    rep = dev.stream(desired)
-                    last_desired = desired
-                    pending = self._sent(rep, desired, pending, now)
+                due = deadline is not None and deadline <= 0
+                if due and deadline_at is not None:
+                    st.deadline_late_ms.append((now - deadline_at) * 1000.0)
+                try:
+                    if desired != last_desired or due:
+                        rep = dev.stream(desired)
+                        last_desired = desired
+                        pending = self._sent(rep, desired, pending, now)
+                    else:
+                        dev.stream_alive()
+                    failures = 0
+                except DeviceError as e:
+                    # A stalled loop lets the device's watchdog end the session (every
+                    # actuator off); open it again and go on, unless that keeps failing.
+                    failures += 1
+                    if failures > 3 or self.reconnect is False:
+                        raise
+                    self._reconnect(e)
+                    last_desired = None
+                    continue
                 # Sleep until something happens.
                 now = time.monotonic()
-                waits = [end_at - now, self.stall_s - (now - last_frame_at) + 0.001, 0.25]
+                waits = [end_at - now, self.stall_s - (now - last_frame_at) + 0.001,
+                         dev.stream_checkin_ms / 2000.0]
                 if prog is not None:
                     waits.append(prog.ms_to_next_change(prog.phase(now, self.epoch)) / 1000.0
                                  + 0.0002)
                 deadline = dev.stream_deadline_s()
+                deadline_at = None if deadline is None else now + deadline
                 if deadline is not None:
                     waits.append(deadline)
                 self.mailbox.wait(max(0.0, min(waits)))
@@ -293,6 +327,25 @@ class LiveRun:
                 self._emit("end", st.summary())
                 self._snapshot({})
         return st
+
+    def _reconnect(self, error: DeviceError) -> None:
+        st = self.stats
+        st.reconnects += 1
+        st.last_notes = [f"device: {error}"[:160], "reconnected: every actuator was off"]
+        st.last_notes_at = time.monotonic()
+        self._emit("output", {
+            "t_host": time.monotonic(), "t_device_ms": None, "t_onset_host": None,
+            "frame": None, "changed": len(self._applied), "on": 0, "applied": {},
+            "degradations": [], "latency_ms": None, "latency_frame": None})
+        self._applied = {}
+        try:
+            self.device.close()
+        except Exception:
+            pass                    # it is off: by its watchdog, or it is gone
+        try:
+            self.device.open()
+        except Exception:
+            raise error from None
 
     def _process(self, frame: Frame, pending: _Pending | None, now: float) -> _Pending | None:
         st = self.stats

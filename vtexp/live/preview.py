@@ -109,8 +109,8 @@ def _pattern_panel(snap: Snapshot, profile: DeviceProfile, h: int) -> np.ndarray
         cv.putText(panel, "no object found", (10, h // 2), cv.FONT_HERSHEY_SIMPLEX, 0.6, FG,
                    1, cv.LINE_AA)
         return panel
-    img = draw_pattern(snap.encoded.pattern, cell=max(10, int(h / (profile.rows + 2))))
-    img = 255 - img                       # white on dark, like the rest of the preview
+    img = draw_pattern(snap.encoded.pattern, cell=max(10, int(h / (profile.rows + 2))),
+                       title="contour on the array")
     return _fit(img, h)[0]
 
 
@@ -169,12 +169,12 @@ class PreviewWindow:
         if fit < 1.0:
             img = cv.resize(img, (int(img.shape[1] * fit), int(img.shape[0] * fit)),
                             interpolation=cv.INTER_AREA)
-        rgb = cv.cvtColor(img, cv.COLOR_BGR2RGB)
-        # PsychoPy takes float images in -1..1 with row 0 at the bottom.
-        data = np.flipud(rgb).astype(np.float32) * (2.0 / 255.0) - 1.0
-        if self._stim is None or tuple(self._stim.size) != (data.shape[1], data.shape[0]):
-            self._stim = self._visual.ImageStim(self.win, image=data, units="pix",
-                                                size=(data.shape[1], data.shape[0]))
+        from PIL import Image
+
+        data = Image.fromarray(cv.cvtColor(img, cv.COLOR_BGR2RGB))   # PsychoPy's own way in
+        size = (img.shape[1], img.shape[0])
+        if self._stim is None or tuple(self._stim.size) != size:
+            self._stim = self._visual.ImageStim(self.win, image=data, units="pix", size=size)
         else:
             self._stim.image = data
         self._stim.draw()
@@ -184,22 +184,38 @@ class PreviewWindow:
         return bool(self._event.getKeys(keyList=["escape", "q"]))
 
     def screenshot(self, path: str) -> None:
-        """Save what the window shows now (its front buffer)."""
-        self.win.getMovieFrame(buffer="front")
-        self.win.saveMovieFrames(path)
+        """Save the picture on show as a PNG, read back from the window (drawn into the
+        back buffer again, not flipped)."""
+        from pathlib import Path as _Path
+
+        if self._stim is None:
+            raise RuntimeError("nothing is on show")
+        self._stim.draw()
+        frame = self.win.getMovieFrame(buffer="back")
+        self.win.movieFrames.remove(frame)
+        self.win.clearBuffer()
+        out = _Path(path)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        frame.save(out)
 
     def run(self, latest: Callable[[], Snapshot | None], running: Callable[[], bool],
-            stop: Callable[[str], None]) -> None:
+            stop: Callable[[str], None], *, screenshot: str | None = None,
+            screenshot_after_s: float = 1.5) -> None:
         """Show the newest snapshot at up to ``max_fps`` while ``running()``; Escape or ``q``
-        calls ``stop``."""
+        calls ``stop``. With ``screenshot``, the picture on show ``screenshot_after_s``
+        after the start is saved there."""
         period = 1.0 / self.max_fps
         shown = None
+        shot_at = time.monotonic() + screenshot_after_s if screenshot else math.inf
         while running():
             t = time.monotonic()
             snap = latest()
             if snap is not None and snap is not shown:
                 self.show(snap)
                 shown = snap
+                if t >= shot_at:
+                    self.screenshot(screenshot)
+                    shot_at = math.inf
             if self.stop_requested():
                 stop("preview closed by the experimenter (Escape)")
                 break

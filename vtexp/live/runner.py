@@ -95,11 +95,11 @@ def _run_with_preview(run: LiveRun, setup: LiveSetup, holder: dict, options: dic
 
     worker = threading.Thread(target=work, name="vtexp-live-loop", daemon=True)
     worker.start()
+    after = 0.6 * run.duration_s if run.duration_s else 1.5
     try:
-        window.run(lambda: holder.get("s"), worker.is_alive, run.stop)
-        if screenshot is not None and holder.get("s") is not None:
-            window.show(holder["s"])
-            window.screenshot(str(screenshot))
+        window.run(lambda: holder.get("s"), worker.is_alive, run.stop,
+                   screenshot=None if screenshot is None else str(screenshot),
+                   screenshot_after_s=after)
     except KeyboardInterrupt:
         run.stop("interrupted (Ctrl-C)")
         worker.join(timeout=5)
