@@ -10,8 +10,9 @@ processing time, and what the safety guard is leaving out (trains cut short, pin
 held off to cool, pins skipped for the power budget), in orange, as long as it lasts.
 
 :class:`PreviewWindow` shows those pictures in a PsychoPy window (the project's
-window toolkit; the OpenCV vtexp installs has no windows) at up to ``max_fps``;
-Escape or ``q`` in it ends the run.
+window toolkit; the OpenCV vtexp installs has no windows) at up to ``max_fps`` (15:
+drawing shares the processor, and the interpreter, with the loop that drives the
+array); Escape or ``q`` in it ends the run.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .._cv2 import cv2
-from ..draw import draw_pattern
+from ..draw import LINE_COLOURS, draw_pattern
 from ..encoding.mapping import ImageToArray
 from ..model import DeviceProfile, LevelDrive, PulseTrain
 from .loop import Snapshot
@@ -68,10 +69,12 @@ def _camera_panel(snap: Snapshot, h: int) -> np.ndarray:
             if len(poly) > 1 and all(q.order is not None for q in pts):
                 cv.polylines(panel, [poly.reshape(-1, 1, 2)], closed, (60, 200, 60), 2,
                              cv.LINE_AA)
+            lined = len(p.lines()) > 1          # height contours: one colour per line
             for (x, y), q in zip(poly, pts, strict=True):
-                cv.circle(panel, (int(x), int(y)), 6 if (q.corner or q.vertex) else 4,
-                          (40, 40, 230) if (q.corner or q.vertex) else (60, 200, 60), -1,
-                          cv.LINE_AA)
+                mark = q.corner or q.vertex
+                colour = LINE_COLOURS[(max(q.line, 1) - 1) % len(LINE_COLOURS)] if lined \
+                    else ((40, 40, 230) if mark else (60, 200, 60))
+                cv.circle(panel, (int(x), int(y)), 6 if mark else 4, colour, -1, cv.LINE_AA)
     return panel
 
 
@@ -147,7 +150,7 @@ class PreviewWindow:
     """A PsychoPy window showing :func:`compose`'s pictures (module docstring)."""
 
     def __init__(self, profile: DeviceProfile, *, size: tuple[int, int] = (1280, 560),
-                 max_fps: float = 30.0, fullscreen: bool = False, screen: int = 0):
+                 max_fps: float = 15.0, fullscreen: bool = False, screen: int = 0):
         from ..responders.window import import_psychopy
 
         self.profile = profile
