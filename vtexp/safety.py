@@ -196,9 +196,11 @@ class StreamGuard:
       still gets a real pause (at most 91 % on);
     - **cooling**: an actuator that stopped less than ``min_off_ms`` ago stays off
       (SMA wires, seed 002 §3.3), whether a frame or a play stopped it;
-    - **power budget**: of more than ``max_simultaneous`` actuators asked for, those
-      already on are kept first, then the strongest (level, or pulse power
-      A²·width·f), then in raster order; the rest are skipped;
+    - **power budget**: of more than ``max_simultaneous`` actuators asked for, the
+      strongest (level, or pulse power A²·width·f) are kept first; among equals, those
+      the previous frame did not ask for (where the object has just moved: the newest
+      frame is what plays), then those already on, then in raster order; the rest are
+      skipped;
     - **one setting's limits** (:func:`setting_problem`): such an actuator is never
       driven.
 
@@ -230,6 +232,7 @@ class StreamGuard:
         self._problems: dict[tuple[Actuator, Drive], str | None] = {}
         #: (actuator, on-time in ms) of every activation that outlasted max_on_ms.
         self.overruns: list[tuple[Actuator, float]] = []
+        self._asked: set[Actuator] = set()
 
     # -- one frame ---------------------------------------------------------------------------
     def admit(self, desired: Mapping[Actuator, Drive], now_ms: float
@@ -267,12 +270,14 @@ class StreamGuard:
             allowed[key] = drive
         skipped: list[Actuator] = []
         if len(allowed) > self.budget:
-            ranked = sorted(allowed, key=lambda k: (k not in self.on_since,
-                                                    -_strength(allowed[k]), k))
+            before = self._asked
+            ranked = sorted(allowed, key=lambda k: (-_strength(allowed[k]), k in before,
+                                                    k not in self.on_since, k))
             for key in ranked[self.budget:]:
                 skipped.append(key)
                 del allowed[key]
         self._held = held
+        self._asked = set(desired)
         notes: list[Degradation] = []
         if refused:
             (k0, why), n = refused[0], len(refused)

@@ -73,7 +73,7 @@ class Device(Protocol):
 
     def all_off(self) -> None: ...
 
-    def stream(self, frame: Mapping[Actuator, Drive]) -> StreamReport: ...
+    def stream(self, frame: Mapping[Actuator, Drive], *, full: bool = False) -> StreamReport: ...
 
     def close(self) -> None: ...
 
@@ -189,7 +189,7 @@ class DeviceBase:
         self._alive_at = time.monotonic()
         self._stream_checked_in()
 
-    def stream(self, frame: Mapping[Actuator, Drive]) -> StreamReport:
+    def stream(self, frame: Mapping[Actuator, Drive], *, full: bool = False) -> StreamReport:
         """Set the outputs now: ``frame`` maps (row, col) to a level or a pulse train;
         every actuator not in it is off.
 
@@ -203,7 +203,8 @@ class DeviceBase:
         alive, and the device switches everything off itself before any on-time limit
         is reached (the guard cuts trains early enough for that). On any error every
         actuator is turned off. :meth:`all_off` ends the stream; a :meth:`play` ends it
-        too.
+        too. ``full=True`` sends every actuator's setting each time, as a naive host
+        does (``bench/live.py``'s baseline).
         """
         self.open()
         if self._guard is None:
@@ -232,9 +233,9 @@ class DeviceBase:
                    if old.get(k) != allowed.get(k)}
         host_before = time.monotonic() * 1000.0
         t_device = None
-        if changes:
+        if changes or full:
             try:
-                t_device = self._set_outputs(changes)
+                t_device = self._set_outputs(changes, full=full)
             except BaseException:
                 self.all_off()          # ends the stream, marking every actuator off
                 raise
@@ -289,9 +290,11 @@ class DeviceBase:
     def _close(self) -> None:
         pass
 
-    def _set_outputs(self, changes: Mapping[Actuator, Drive | None]) -> float:
-        """Apply ``changes`` (None = off) at once; return when they took effect, on the
-        device's clock in ms (the device's report)."""
+    def _set_outputs(self, changes: Mapping[Actuator, Drive | None], *,
+                     full: bool = False) -> float:
+        """Apply ``changes`` (None = off) at once — with ``full``, as a frame that sets
+        every actuator — and return when they took effect, on the device's clock in ms
+        (the device's report)."""
         raise NotImplementedError(f"the {self.backend} device cannot stream frames")
 
     def _stream_started(self) -> None:

@@ -528,14 +528,24 @@ class SerialDevice(DeviceBase):
         if self._link is not None and self._link.lost is not None:
             raise self._lost(self._link.lost)
 
-    def _set_outputs(self, changes) -> float:
+    def _set_outputs(self, changes, *, full: bool = False) -> float:
         # Offsets first: a device that applies a frame's changes one after another (or a
         # frame split in two for its size) never has more actuators on than before or after.
         cols = self.profile.cols
         wire_changes = sorted(((r * cols + c, self._off if d is None else drive_setting(d))
                                for (r, c), d in changes.items()),
                               key=lambda ch: (not ch[1].is_off, ch[0]))
+        if full:
+            return self._call(lambda link: self._send_full(link, wire_changes))
         return self._call(lambda link: self._send_outputs(link, wire_changes))
+
+    def _send_full(self, link: Link, changes: list[tuple[int, Setting]]) -> float:
+        state = list(self._outputs)
+        for i, s in changes:
+            state[i] = s
+        ack = link.expect(SetFrameFull(self._drive, tuple(state)), Ack)
+        self._outputs = state
+        return ack.t_us / 1000.0
 
     def _send_outputs(self, link: Link, changes: list[tuple[int, Setting]]) -> float:
         applied = None

@@ -131,7 +131,7 @@ class SimDevice(DeviceBase):
             raise DeviceError(f"the sim's watchdog switched everything off: the host's loop "
                               f"was silent for {now - last:.0f} ms (watchdog {wd:g} ms)")
 
-    def _set_outputs(self, changes) -> float:
+    def _set_outputs(self, changes, *, full: bool = False) -> float:
         t = self._now_ms()
         for (r, c), drive in changes.items():
             self.state[r, c] = 0.0 if drive is None else (
