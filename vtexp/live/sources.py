@@ -466,8 +466,11 @@ class Capture:
         except BaseException as e:          # handed to the loop, which says it and stops
             self.mailbox.fail(e)
 
-    def stop(self) -> None:
+    def stop(self, close: bool = True) -> None:
+        """Stop reading (and close the source, unless ``close`` is false: another reader
+        follows, as a live camera trial's loop follows its still frame)."""
         self.stop_event.set()
         self.mailbox.notify()
         self._thread.join(timeout=2.0)
-        self.source.close()
+        if close:
+            self.source.close()
