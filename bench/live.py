@@ -58,6 +58,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vtexp.devices import open_device  # noqa: E402
+from vtexp.errors import DeviceError  # noqa: E402
 from vtexp.encoding.mapping import ImageToArray  # noqa: E402
 from vtexp.live.encoder import LiveEncoder, LiveSetup  # noqa: E402
 from vtexp.live.loop import ClockMap, LiveRun  # noqa: E402
@@ -120,6 +121,7 @@ class Log:
         self.late_ms: list[float] = []
         self.degradations: dict[str, int] = {}
         self.elapsed = 0.0
+        self.reconnects = 0
 
 
 def run_vtexp_live(video: Path, setup: LiveSetup, device) -> Log:
@@ -175,6 +177,17 @@ def run_naive(video: Path, setup: LiveSetup, device, *, every_s: float | None = 
     device.open()
     state: dict | None = None
 
+    def alive(fn) -> object:
+        # A stall that let the device's watchdog end the session: open it again, as
+        # vtexp live does, so that the baseline is measured to the end (counted).
+        try:
+            return fn()
+        except DeviceError:
+            log.reconnects += 1
+            device.close()
+            device.open()
+            return None
+
     def sleep_alive(seconds: float) -> None:
         # The device layer needs a check-in at least every stream_checkin_ms (its
         # watchdog); a naive loop's sleep is cut into slices for that, nothing more.
@@ -183,7 +196,8 @@ def run_naive(video: Path, setup: LiveSetup, device, *, every_s: float | None = 
             time.sleep(min(left, device.stream_checkin_ms / 2000.0))
             if state is not None:
                 d = device.stream_deadline_s()
-                device.stream(state) if d is not None and d <= 0 else device.stream_alive()
+                alive(lambda: device.stream(state) if d is not None and d <= 0
+                      else device.stream_alive())
 
     try:
         while True:
@@ -201,14 +215,17 @@ def run_naive(video: Path, setup: LiveSetup, device, *, every_s: float | None = 
                     if done.is_set():
                         break
                     if state is not None:
-                        device.stream_alive()
+                        alive(device.stream_alive)
                     continue
             t = time.perf_counter()
             res = enc.process(f.image, frame=f.index, t_capture=f.t_capture)
             log.process_ms.append((time.perf_counter() - t) * 1000.0)
             log.processed += 1
             new = held(res.program.schedule) if res.program is not None else {}
-            rep = device.stream(new, full=True)
+            rep = alive(lambda: device.stream(new, full=True))
+            if rep is None:
+                state = None
+                continue
             for dg in rep.degradations:
                 log.degradations[dg.kind] = log.degradations.get(dg.kind, 0) + 1
             if rep.t_device_ms is not None:
