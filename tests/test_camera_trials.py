@@ -188,7 +188,6 @@ def test_a_model_participant_cannot_feel_a_camera(tmp_path, clip):
 
 
 def test_no_object_before_the_camera_is_one_message(tmp_path):
-    import cv2 as _  # noqa: F401  (the contrib build, checked by vtexp._cv2)
     from vtexp._cv2 import cv2
 
     w = cv2().VideoWriter(str(tmp_path / "clip.avi"), cv2().VideoWriter_fourcc(*"MJPG"), 30,

@@ -73,7 +73,7 @@ def test_a_stalled_host_is_switched_off_by_the_devices_watchdog_before_any_limit
     from vtexp.errors import DeviceError
 
     with open_device("emulator", SMA) as dev:
-        rep = dev.stream({(2, 2): TRAIN})
+        dev.stream({(2, 2): TRAIN})
         time.sleep(0.6)                                  # stalled: no frame, no check-in
         assert dev.emulator.all_outputs_off()
         with pytest.raises(DeviceError):

@@ -148,7 +148,7 @@ def cmd_live_replay(args) -> int:
     except KeyboardInterrupt:
         err("interrupted (Ctrl-C); every actuator is off")
         return 130
-    out(f"  replayed; every actuator is off"
+    out("  replayed; every actuator is off"
         + (f"; safety held the limits: {kinds}" if kinds else ""))
     return 0
 
