@@ -34,6 +34,7 @@ class Condition:
     coding_params: dict[str, Any]
     pattern: Pattern | None = field(default=None, repr=False)
     schedule: Schedule | None = field(default=None, repr=False)
+    camera: bool = False                     # the stimulus is taken at each trial
 
     @property
     def label(self) -> str:
@@ -62,7 +63,8 @@ def enumerate_conditions(lx: LoadedExperiment) -> list[Condition]:
             elif f.sets == "encoding":
                 enc.update(f.params_of(lvl))
         stimulus = levels[stim_factor] if stim_factor else next(iter(exp.stimuli))
-        out.append(Condition(i, levels, stimulus, enc, cod))
+        out.append(Condition(i, levels, stimulus, enc, cod,
+                             camera=exp.stimuli[stimulus].is_camera))
     return out
 
 
@@ -105,6 +107,9 @@ def compile_conditions(lx: LoadedExperiment, profile: DeviceProfile | None = Non
     patterns: dict[tuple, Pattern] = {}
     conditions = enumerate_conditions(lx)
     for c in conditions:
+        if c.camera:
+            _check_camera_condition(lx, c, profile)
+            continue
         if c.stimulus not in images:
             images[c.stimulus] = stimulus_image(lx, c.stimulus)
         key = (c.stimulus, tuple(sorted(encoding_params(lx, c.encoding_params).items())))
@@ -121,6 +126,22 @@ def compile_conditions(lx: LoadedExperiment, profile: DeviceProfile | None = Non
             where = _condition_keypath(lx, c)
             raise lx.error(f"condition {c.label}: unsafe stimulus: {e}", where) from None
     return conditions
+
+
+def _check_camera_condition(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) -> None:
+    """A camera condition's coding on this device, tried on a one-point pattern (its image
+    is taken when the trial runs)."""
+    import warnings
+
+    encoding_params(lx, c.encoding_params)
+    probe = Pattern(rows=profile.rows, cols=profile.cols,
+                    points=[{"row": 0, "col": 0, "line": 1, "order": 0}])
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            check_schedule(code(lx, probe, profile, c.coding_params), profile)
+    except (InputError, UnsafeStimulus) as e:
+        raise lx.error(f"condition {c.label}: {e}", _condition_keypath(lx, c)) from None
 
 
 def _condition_keypath(lx: LoadedExperiment, c: Condition) -> tuple:

@@ -41,11 +41,25 @@ def _registered(kind: str, name: str | None, registry: dict) -> str | None:
 
 
 class StimulusSpec(Model):
-    """A stimulus image: from a generator (``generator`` + ``params``) or a ``file``."""
+    """A stimulus image: from a generator (``generator`` + ``params``), a ``file``, or a
+    camera (``camera: N``; ``video: FILE`` stands in for one in tests), whose frame is
+    taken at each trial (``vtexp.live.trial``)."""
 
     generator: str | None = Field(None, description="a name from vtexp.stimuli.GENERATORS")
     file: str | None = Field(None, description="image path, relative to the YAML file")
     params: dict[str, Any] = Field(default_factory=dict)
+    camera: Annotated[int, Field(ge=0)] | None = Field(
+        None, description="a camera (OpenCV index): the object placed before it is the stimulus")
+    video: str | None = Field(
+        None, description="a video file standing in for a camera, relative to the YAML file")
+    object: str | None = Field(
+        None, description="camera: what the experimenter is asked to place (default: the "
+                          "stimulus's name)")
+    delay_s: Annotated[float, Field(ge=0, le=600)] | None = Field(
+        None, description="camera: take the frame this long after the trial starts, instead "
+                          "of asking the experimenter to press Enter")
+    live: bool = Field(False, description="camera: play the camera continuously until the "
+                                          "participant answers")
 
     @field_validator("generator")
     @classmethod
@@ -55,11 +69,21 @@ class StimulusSpec(Model):
 
     @model_validator(mode="after")
     def _one_source(self) -> Self:
-        if (self.generator is None) == (self.file is None):
-            raise ValueError("give either 'generator' or 'file'")
-        if self.file is not None and self.params:
-            raise ValueError("'params' apply to generators only, not to files")
+        given = [k for k in ("generator", "file", "camera", "video")
+                 if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give one of 'generator', 'file', 'camera' or 'video'")
+        if self.generator is None and self.params:
+            raise ValueError("'params' apply to generators only")
+        if not self.is_camera and (self.object is not None or self.delay_s is not None
+                                   or self.live):
+            raise ValueError("'object', 'delay_s' and 'live' apply to 'camera' and 'video' only")
         return self
+
+    @property
+    def is_camera(self) -> bool:
+        """Taken from a camera (or a video standing in for one) at each trial."""
+        return self.camera is not None or self.video is not None
 
 
 class EncodingSpec(Model):
@@ -456,7 +480,7 @@ class Experiment(Model):
 
 
 RESERVED_COLUMNS = frozenset(
-    "trial practice repetition block stimulus question answer correct_answer correct rt_s "
+    "trial practice repetition block stimulus stim_file question answer correct_answer correct rt_s "
     "replays stimulus_onset_ms stimulus_duration_ms n_pulses status started_at "
     "experiment participant session".split())
 
@@ -514,10 +538,13 @@ def _check(lx: LoadedExperiment) -> None:
         raise
 
     for sname, spec in exp.stimuli.items():
-        if spec.file is not None:
-            f = lx.resolve(spec.file)
+        if spec.file is not None or spec.video is not None:
+            key = "file" if spec.file is not None else "video"
+            f = lx.resolve(spec.file or spec.video)
             if not f.is_file():
-                raise lx.error(f"stimulus file {str(f)!r} not found", ("stimuli", sname, "file"))
+                raise lx.error(f"stimulus {key} {str(f)!r} not found", ("stimuli", sname, key))
+        elif spec.is_camera:
+            pass                                # a camera is looked for when the trial runs
         else:
             _, params_model = GENERATORS[spec.generator]
             _validate_params(lx, params_model, spec.params, ("stimuli", sname, "params"))
@@ -585,6 +612,27 @@ def _check(lx: LoadedExperiment) -> None:
 
     for qi, q in enumerate(exp.asked()):
         _check_correct(lx, q, ("question",) if exp.question is not None else ("questions", qi))
+    _check_camera(lx)
+
+
+def _check_camera(lx: LoadedExperiment) -> None:
+    """Live camera stimuli need a pipeline that runs live, and no replays (they play
+    until the answer)."""
+    exp = lx.experiment
+    live = [n for n, s in exp.stimuli.items() if s.live]
+    if not live:
+        return
+    from .live.encoder import LIVE_PIPELINES
+
+    if exp.encoding.pipeline not in LIVE_PIPELINES:
+        raise lx.error(f"stimulus {live[0]!r} is live, but pipeline "
+                       f"{exp.encoding.pipeline!r} does not run live (one of "
+                       f"{', '.join(LIVE_PIPELINES)})", ("stimuli", live[0], "live"))
+    for qi, q in enumerate(exp.asked()):
+        if q.replays:
+            where = ("question",) if exp.question is not None else ("questions", qi)
+            raise lx.error(f"a live stimulus ({live[0]!r}) plays until the answer; it cannot "
+                           "be felt again (replays: 0)", where + ("replays",))
 
 
 def _check_correct(lx: LoadedExperiment, q, where: KeyPath) -> None:

@@ -106,6 +106,16 @@ class TsvLog:
             raise ValueError(f"columns not in the log: {sorted(unknown)}")
         self._write("\t".join(format_value(row.get(c)) for c in self.columns) + "\n")
 
+    def append_many(self, rows: list[dict[str, Any]]) -> None:
+        """Several rows with one ``write`` and one ``fsync`` (a live record's batch)."""
+        if not rows:
+            return
+        unknown = set().union(*rows) - set(self.columns)
+        if unknown:
+            raise ValueError(f"columns not in the log: {sorted(unknown)}")
+        self._write("".join("\t".join(format_value(r.get(c)) for c in self.columns) + "\n"
+                            for r in rows))
+
     def _write(self, text: str) -> None:
         data = text.encode("utf-8")
         try:

@@ -321,6 +321,8 @@ class TrialRecord(Model):
     repetition: Annotated[int, Field(ge=0)] = Field(description="0 for a practice trial")
     block: Annotated[int, Field(ge=0)] = Field(0, description="block number, 0 if not blocked")
     stimulus: str
+    stim_file: str | None = Field(
+        None, description="camera stimuli: the frame taken, relative to the session folder")
     condition: dict[str, str] = Field(description="factor name -> level label")
     question: str = "response"
     answer: str | None

@@ -12,6 +12,10 @@ One folder per session, following the BIDS behavioural convention::
 rewritten at the end with the status (``completed``, ``aborted``, ``failed``),
 the end time and the SHA-256 of each file. A session folder is created
 exclusively: a run never overwrites an existing session.
+
+An experiment with camera stimuli (``camera: N``, ``video: FILE``) also keeps the
+frame taken at each such trial in ``stim/`` (and a live trial's record), named in the
+trial log's ``stim_file`` column (``vtexp.live.trial``).
 """
 
 from __future__ import annotations
@@ -132,10 +136,16 @@ EVENT_COLUMNS = ["trial", "play", "row", "col", "scheduled_onset_ms", "onset_ms"
                  "duration_ms", "level", "amplitude_v", "frequency_hz", "pulse_width_ms"]
 
 
-def trial_columns(factors: list[str]) -> list[str]:
-    return (["trial", "practice", "repetition", "block", *factors, "stimulus", "question",
+def trial_columns(factors: list[str], camera: bool = False) -> list[str]:
+    """The trial log's columns; ``stim_file`` after ``stimulus`` with camera stimuli."""
+    return (["trial", "practice", "repetition", "block", *factors, "stimulus",
+             *(["stim_file"] if camera else []), "question",
              "answer", "correct_answer", "correct", "rt_s", "replays", "stimulus_onset_ms",
              "stimulus_duration_ms", "n_pulses", "status", "started_at"])
+
+
+def has_camera(lx: LoadedExperiment) -> bool:
+    return any(s.is_camera for s in lx.experiment.stimuli.values())
 
 
 def sidecar(lx: LoadedExperiment) -> dict:
@@ -154,6 +164,10 @@ def sidecar(lx: LoadedExperiment) -> dict:
                                       if f.params_of(lv) else lv) for lv in f.level_names}}
     cols.update({
         "stimulus": {"Description": "name of the stimulus in the experiment file"},
+        **({"stim_file": {"Description": "camera stimuli: the frame taken at the trial (PNG), "
+                                         "relative to the session folder; a live trial's "
+                                         "record is the folder of the same name + '-live'"}}
+           if has_camera(lx) else {}),
         "question": {"Description": "name of the question answered (one row per question)",
                      "Levels": {q.name: q.prompt for q in exp.asked()}},
         "answer": _answer_description(exp.asked()),
@@ -208,7 +222,8 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                 conditions: list[Condition] | None = None,
                 sinks: tuple[TrialSink, ...] = (), command: list[str] | None = None,
                 on_device_error: DeviceFaultHandler | None = None,
-                resume: bool = False, max_trials: int | None = None) -> SessionResult:
+                resume: bool = False, max_trials: int | None = None,
+                capture_prompt: Callable[[str], None] | None = None) -> SessionResult:
     """Run one session and log it. Raises SessionError if the session already exists.
 
     ``resume=True`` continues a session that did not finish (killed, crashed,
@@ -228,6 +243,10 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     ``max_trials=N`` stops after N trials of this run (counted from where a
     resumed session continues): the session ends with status ``aborted`` and
     the reason "stopped after N trials as asked", so that it can be resumed.
+
+    ``capture_prompt(text)`` asks the experimenter to place a camera stimulus's object
+    and returns when it is in place (``vtexp.live.trial``); camera stimuli without
+    ``delay_s`` need it.
     """
     exp = lx.experiment
     check_participant(participant)
@@ -239,6 +258,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     conditions = conditions or compile_conditions(lx, profile)
     trials, seed = trial_list(exp, conditions, participant, session)
     paths = SessionPaths.of(data_dir, exp.name, exp.task_label, participant, session)
+    camera = _CameraTrials.of(lx, paths.dir, capture_prompt)
 
     factors = list(exp.factors)
     if resume:
@@ -246,7 +266,8 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
             raise SessionError(f"there is no session {session} of participant {participant} in "
                                f"{paths.dir} to resume")
         info = device.open()
-        record, beh, events, done = _reopen(paths, lx, trials, seed, factors, info)
+        record, beh, events, done = _reopen(paths, lx, trials, seed, factors, info,
+                                            camera is not None)
     else:
         try:
             paths.dir.parent.mkdir(parents=True, exist_ok=True)
@@ -284,7 +305,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
         }
         write_json_atomic(paths.session_json, record)
         write_json_atomic(paths.beh_json, sidecar(lx))
-        beh = TsvLog(paths.beh_tsv, trial_columns(factors))
+        beh = TsvLog(paths.beh_tsv, trial_columns(factors, camera is not None))
         events = TsvLog(paths.events_tsv, EVENT_COLUMNS)
         done = 0
     result = SessionResult(paths, "running", seed=seed)
@@ -294,7 +315,8 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
         call_hook(responder, "instructions", exp.instructions.strip() or exp.asked()[0].prompt)
         todo = trials[done:] if max_trials is None else trials[done:done + max_trials]
         for trial in todo:
-            recs, plays = _run_trial_pausing(exp, trial, device, responder, on_device_error)
+            recs, plays = _run_trial_pausing(exp, trial, device, responder, on_device_error,
+                                             camera)
             # The device events first, the trial's row last: the row is what makes a
             # trial complete, so a trial cut short leaves no row and is played again.
             for i, rep in enumerate(plays):
@@ -308,7 +330,8 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                                    "pulse_width_ms": p.train.pulse_width_ms if p.train else None})
             for rec in recs:                     # one row per question, the trial's last
                 beh.append({**{f: trial.levels[f] for f in factors},
-                            **rec.model_dump(exclude={"condition"})})
+                            **rec.model_dump(exclude={"condition"} if camera else
+                                             {"condition", "stim_file"})})
             result.records.extend(recs)
             record["n_trials_logged"] = trial.number
             for rec in recs:
@@ -355,7 +378,7 @@ def _maybe_break(exp, trial: Trial, trials: list[Trial], responder: Responder) -
 
 
 def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed: int,
-            factors: list[str], info) -> tuple[dict, TsvLog, TsvLog, int]:
+            factors: list[str], info, camera: bool = False) -> tuple[dict, TsvLog, TsvLog, int]:
     """Check that a session can be resumed and reopen its logs; return how many trials it holds."""
     import json
 
@@ -379,8 +402,8 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed
             [t.condition.index for t in trials]:
         raise SessionError(f"the trial list of {paths.dir} cannot be rebuilt (seed or order "
                            "differ); it cannot be resumed")
-    beh, rows, cut_beh = TsvLog.reopen(paths.beh_tsv, trial_columns(factors))
-    cols = trial_columns(factors)
+    beh, rows, cut_beh = TsvLog.reopen(paths.beh_tsv, trial_columns(factors, camera))
+    cols = trial_columns(factors, camera)
     per_trial = len(lx.experiment.asked())          # one row per question
     for i, row in enumerate(rows):
         k = i // per_trial + 1
@@ -409,13 +432,14 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed
 
 
 def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Responder,
-                       on_device_error: DeviceFaultHandler | None
+                       on_device_error: DeviceFaultHandler | None,
+                       camera: _CameraTrials | None = None
                        ) -> tuple[list[TrialRecord], list[PlayReport]]:
     """A trial, with the experimenter's choice when the device fails during it."""
     while True:
         started = now_iso()
         try:
-            return _run_trial(exp, trial, device, responder)
+            return _run_trial(exp, trial, device, responder, camera)
         except DeviceError as e:
             error = e
             choice = on_device_error(error, trial) if on_device_error else "abort"
@@ -443,11 +467,19 @@ def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Respond
             raise error
 
 
-def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
+def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder,
+               camera: _CameraTrials | None = None
                ) -> tuple[list[TrialRecord], list[PlayReport]]:
     """Play the stimulus, then ask each question in turn: one record per question."""
     started = now_iso()
     schedule = trial.condition.schedule
+    stim_file = None
+    if trial.condition.camera:
+        if camera is None:
+            raise SessionError(f"trial {trial.number}: stimulus {trial.stimulus!r} is a camera")
+        schedule, stim_file, live = camera.take(trial, device)
+        if live is not None:
+            return camera.live_trial(exp, trial, live, responder, started, stim_file), []
     stop = getattr(responder, "stop_requested", None)
 
     def play() -> PlayReport:
@@ -481,6 +513,7 @@ def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder
             block=trial.block, stimulus=trial.stimulus,
             condition=trial.levels, question=q.name, answer=resp.answer, correct_answer=right,
             correct=None if right is None else resp.answer == right, rt_s=resp.rt_s,
+            stim_file=stim_file,
             replays=len(plays) - before, stimulus_onset_ms=plays[0].started_at_ms,
             stimulus_duration_ms=plays[0].duration_ms, n_pulses=len(plays[0].pulses),
             started_at=started))
@@ -493,3 +526,66 @@ def _wait(device: DeviceBase, ms: float) -> None:
         wait(ms)
     elif ms > 0:
         time.sleep(ms / 1000.0)
+
+
+@dataclass
+class _CameraTrials:
+    """What camera trials need from the session: its folder and the experimenter's prompt
+    (the work is ``vtexp.live.trial``'s)."""
+
+    lx: LoadedExperiment
+    dir: Path
+    prompt: Callable[[str], None] | None
+
+    @classmethod
+    def of(cls, lx: LoadedExperiment, folder: Path, prompt) -> _CameraTrials | None:
+        if not has_camera(lx):
+            return None
+        from .live.trial import needs_prompt
+
+        asking = needs_prompt(lx)
+        if asking and prompt is None:
+            raise SessionError(f"stimulus {asking[0]!r} asks the experimenter to place the object "
+                               "before the camera, but no one can be asked (no terminal); "
+                               "declare delay_s for it, or run from a terminal")
+        return cls(lx, folder, prompt)
+
+    def take(self, trial: Trial, device: DeviceBase):
+        """The frame of this trial, saved; its schedule, or the live run to start."""
+        from .live import trial as camera
+
+        source, name = camera.camera_source(self.lx, trial.stimulus)
+        try:
+            got = camera.capture(self.lx, trial, self.dir, self.prompt, source, name)
+            if self.lx.experiment.stimuli[trial.stimulus].live:
+                folder = self.dir / (got.stim_file[:-len(".png")] + "-live")
+                live = camera.LiveTrial(self.lx, trial.condition, device, source, folder)
+                source = None                       # the live run reads it from here on
+                return None, got.stim_file, live
+            _, schedule = camera.coded(self.lx, trial.condition, got.image, device.profile)
+            return schedule, got.stim_file, None
+        finally:
+            if source is not None:
+                source.close()
+
+    def live_trial(self, exp, trial: Trial, live, responder: Responder, started: str,
+                   stim_file: str) -> list[TrialRecord]:
+        """The camera felt continuously while the participant answers each question."""
+        call_hook(responder, "stimulus_starts", trial)
+        live.start()
+        answers = []
+        try:
+            for q in exp.asked():
+                answers.append((q, responder.ask(q, trial, None)))
+        finally:
+            played_ms = live.stop("the participant answered" if answers else "stopped")
+        return [TrialRecord(
+            trial=trial.number, repetition=trial.repetition, practice=trial.practice,
+            block=trial.block, stimulus=trial.stimulus, stim_file=stim_file,
+            condition=trial.levels, question=q.name, answer=resp.answer,
+            correct_answer=correct_answer(q, trial),
+            correct=None if correct_answer(q, trial) is None
+            else resp.answer == correct_answer(q, trial),
+            rt_s=resp.rt_s, replays=0, stimulus_onset_ms=None,
+            stimulus_duration_ms=played_ms, n_pulses=0, started_at=started)
+            for q, resp in answers]

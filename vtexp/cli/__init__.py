@@ -11,6 +11,7 @@ module                 commands
 ``simulate``           ``simulate``
 ``encode``             ``encode``
 ``device``             ``device list|check|monitor|emulate``
+``live``               ``live`` (a camera felt live), ``live-replay``
 ``firmware``           ``firmware build|flash|vectors``
 =====================  ==================================================
 
@@ -32,11 +33,11 @@ import sys
 
 from .. import __version__
 from ..errors import VtexpError
-from . import analyze, demo, device, encode, experiment, firmware, run, simulate, stats
+from . import analyze, demo, device, encode, experiment, firmware, live, run, simulate, stats
 from ._io import err
 
 #: The command groups, in the order ``vtexp --help`` lists them.
-GROUPS = (experiment, run, analyze, stats, encode, device, firmware, demo, simulate)
+GROUPS = (experiment, run, analyze, stats, encode, live, device, firmware, demo, simulate)
 
 
 def build_parser() -> argparse.ArgumentParser:

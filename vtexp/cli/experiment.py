@@ -71,14 +71,15 @@ def cmd_plan(args) -> int:
     factors = list(exp.factors)
     cols = ["trial", *factors, "stimulus", "repetition", "correct_answer", "duration_ms"]
     rows = [[str(t.number), *(t.levels[f] for f in factors), t.stimulus, str(t.repetition),
-             correct_answer(exp.asked()[0], t) or "n/a", f"{t.condition.schedule.duration_ms:.0f}"]
+             correct_answer(exp.asked()[0], t) or "n/a",
+             "camera" if t.condition.camera else f"{t.condition.schedule.duration_ms:.0f}"]
             for t in trials]
     if args.format == "tsv":
         out("\t".join(cols))
         for r in rows:
             out("\t".join(r))
         return 0
-    total_ms = sum(t.condition.schedule.duration_ms for t in trials)
+    total_ms = sum(t.condition.schedule.duration_ms for t in trials if not t.condition.camera)
     out(f"{exp.name}: participant {args.participant}, session {args.session}, seed {seed} "
         f"({'design.seed' if exp.design.seed is not None else 'derived'}), {len(trials)} "
         f"trials, {total_ms / 60000:.1f} min of stimulation")

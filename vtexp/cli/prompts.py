@@ -113,3 +113,15 @@ def ask_experimenter(error, trial) -> str:
         for choice in ("retry", "skip", "abort"):
             if answer in (choice, choice[0]):
                 return choice
+
+
+def place_object(text: str) -> None:
+    """A camera trial: wait until the experimenter has placed the object and pressed Enter.
+    A terminal that closes here aborts the session (the trials done are kept)."""
+    from ..errors import SessionAborted
+
+    try:
+        input(text)
+    except (EOFError, OSError):     # input ended, or the terminal went away
+        raise SessionAborted("the terminal closed while the object was being placed "
+                             "before the camera") from None

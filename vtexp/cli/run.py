@@ -13,7 +13,8 @@ from pathlib import Path
 
 from ..errors import InputError
 from ._io import out
-from .prompts import ask_experimenter, ask_participant, ask_session, status_of, yes
+from .prompts import (ask_experimenter, ask_participant, ask_session, place_object,
+                      status_of, yes)
 
 
 class _Progress:
@@ -57,7 +58,8 @@ def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet,
         return run_session(lx, participant, session, device, responder, data, conditions=conds,
                            sinks=(_Progress(quiet),), command=sys.argv,
                            on_device_error=ask_experimenter if sys.stdin.isatty() else None,
-                           resume=resume, max_trials=max_trials)
+                           resume=resume, max_trials=max_trials,
+                           capture_prompt=place_object if sys.stdin.isatty() else None)
 
 
 def _check_device(device, profile, test_pulse: bool) -> None:

@@ -3,20 +3,42 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 from typing_extensions import Self
 
-from ..errors import SessionAborted
+from ..errors import InputError, SessionAborted
 from ..model import DeviceInfo, DeviceProfile, PlayReport, Schedule
-from ..safety import check_schedule, cooling_wait_ms
+from ..safety import Actuator, Degradation, Drive, StreamGuard, check_schedule, cooling_wait_ms
 
 #: ``play``'s ``should_stop``: true (or a reason, as text) stops the play.
 StopPoll = Callable[[], bool | str | None]
 
 #: How often a play polls ``should_stop`` while it waits, seconds.
 STOP_POLL_S = 0.005
+
+
+@dataclass
+class StreamReport:
+    """What :meth:`DeviceBase.stream` did with one frame of outputs.
+
+    ``applied``: what the array does now (actuator -> drive; every other one off),
+    after :class:`~vtexp.safety.StreamGuard`; ``changed``: how many outputs that
+    changed; ``t_device_ms``: when the change took effect, on the device's clock
+    as the device reported it (None when nothing changed); ``host_before_ms`` and
+    ``host_after_ms``: ``time.monotonic()`` in ms just before sending and once the
+    device confirmed, which bracket ``t_device_ms`` (to map the device's clock onto
+    the host's); ``degradations``: what the guard left out, and why.
+    """
+
+    applied: dict[Actuator, Drive]
+    changed: int
+    t_device_ms: float | None
+    host_before_ms: float
+    host_after_ms: float
+    degradations: list[Degradation] = field(default_factory=list)
 
 
 @runtime_checkable
@@ -28,6 +50,9 @@ class Device(Protocol):
     actually played, with onsets; ``all_off`` stops every actuator at once;
     ``close`` turns everything off and disconnects. Usable as a context
     manager (``with open_device(...) as dev:``).
+
+    ``stream(frame)`` sets the outputs now (a live stream of frames: only the
+    changes are sent), within the limits of :class:`~vtexp.safety.StreamGuard`.
 
     ``play(schedule, should_stop=f)``: ``f`` is called before the play starts and
     every few milliseconds (:data:`STOP_POLL_S`) while it waits for the schedule
@@ -47,6 +72,8 @@ class Device(Protocol):
              ) -> PlayReport: ...
 
     def all_off(self) -> None: ...
+
+    def stream(self, frame: Mapping[Actuator, Drive], *, full: bool = False) -> StreamReport: ...
 
     def close(self) -> None: ...
 
@@ -74,6 +101,10 @@ class DeviceBase:
         self._info: DeviceInfo | None = None
         self._last_off_ms: dict[tuple[int, int], float] = {}
         self._should_stop: StopPoll | None = None
+        self._guard: StreamGuard | None = None
+        self._stream_state: dict[Actuator, Drive] = {}
+        self._streaming = False
+        self._alive_at = 0.0
 
     # -- public API -------------------------------------------------------------------------
     def open(self) -> DeviceInfo:
@@ -87,6 +118,8 @@ class DeviceBase:
     def play(self, schedule: Schedule, *, should_stop: StopPoll | None = None) -> PlayReport:
         check_schedule(schedule, self.profile)
         self.open()
+        if self._streaming:
+            self.all_off()              # a stream ends before a play starts
         self._should_stop = should_stop
         try:
             rest = cooling_wait_ms(schedule, self.profile, self._last_off_ms, self._now_ms())
@@ -115,15 +148,127 @@ class DeviceBase:
 
     def all_off(self) -> None:
         if self._info is not None:
-            self._all_off()
+            try:
+                self._all_off()
+            finally:
+                self._stream_ended()
 
     def close(self) -> None:
         if self._info is not None:
             try:
                 self._all_off()
             finally:
+                self._stream_ended()
                 self._close()
                 self._info = None
+
+    # -- live stream ------------------------------------------------------------------------
+    #: How much earlier than ``max_on_ms`` a stream switches an actuator off, on a device
+    #: without a watchdog: the time the frame that does it may take to reach the device.
+    stream_margin_ms = 50.0
+    #: A stream's loop checks in (``stream`` or ``stream_alive``) at least this often; on a
+    #: device with a watchdog, nothing keeps the device's session alive once it stops, so
+    #: a stalled host is switched off by the device itself (see ``_stream_margin``).
+    stream_checkin_ms = 50.0
+
+    def stream_watchdog_ms(self) -> float | None:
+        """The device's watchdog while streaming (everything off after this long without a
+        frame from the host), or None if it has none."""
+        return None
+
+    def _stream_margin(self) -> float:
+        """How long before ``max_on_ms`` the guard cuts a train. With a watchdog: the
+        check-in period, the watchdog and 10 ms for the last frame on the wire, so that even
+        if the host stalls right after a frame, the device's watchdog switches every
+        actuator off before any exceeds its on-time."""
+        wd = self.stream_watchdog_ms()
+        return self.stream_margin_ms if wd is None else self.stream_checkin_ms + wd + 10.0
+
+    def stream_alive(self) -> None:
+        """The stream's loop checks in without sending anything (nothing changed)."""
+        self._alive_at = time.monotonic()
+        self._stream_checked_in()
+
+    def stream(self, frame: Mapping[Actuator, Drive], *, full: bool = False) -> StreamReport:
+        """Set the outputs now: ``frame`` maps (row, col) to a level or a pulse train;
+        every actuator not in it is off.
+
+        The frame first passes :class:`~vtexp.safety.StreamGuard` (maximum on-time,
+        cooling, power budget, one setting's limits, held across frames and across
+        plays), which leaves out what is not safe now and says so in the report;
+        then only the outputs that change are sent. A frame is needed at least by
+        :meth:`stream_deadline_s` (a train to cut), and the loop checks in (a frame or
+        :meth:`stream_alive`) at least every :attr:`stream_checkin_ms`: on a device with
+        a watchdog, a loop that stops checking in no longer keeps the device's session
+        alive, and the device switches everything off itself before any on-time limit
+        is reached (the guard cuts trains early enough for that). On any error every
+        actuator is turned off. :meth:`all_off` ends the stream; a :meth:`play` ends it
+        too. ``full=True`` sends every actuator's setting each time, as a naive host
+        does (``bench/live.py``'s baseline).
+        """
+        self.open()
+        if self._guard is None:
+            margin = self._stream_margin()
+            if margin > self.profile.limits.max_on_ms / 2:
+                raise InputError(
+                    f"the device's watchdog ({self.stream_watchdog_ms():g} ms) is too long to "
+                    f"stream to {self.profile.name} safely: a train would have to stop "
+                    f"{margin:g} ms before max_on_ms {self.profile.limits.max_on_ms:g}; open it "
+                    "with a shorter heartbeat period", key="--device")
+            self._guard = StreamGuard(self.profile, self._last_off_ms, margin_ms=margin)
+        if not self._streaming:
+            self._alive_at = time.monotonic()
+            self._streaming = True
+            self._stream_started()
+        try:
+            self.stream_alive()
+        except BaseException:
+            self.all_off()
+            raise
+        guard = self._guard
+        before = self._now_ms()
+        allowed, notes = guard.admit(frame, before)
+        old = self._stream_state
+        changes = {k: allowed.get(k) for k in old.keys() | allowed.keys()
+                   if old.get(k) != allowed.get(k)}
+        host_before = time.monotonic() * 1000.0
+        t_device = None
+        if changes or full:
+            try:
+                t_device = self._set_outputs(changes, full=full)
+            except BaseException:
+                self.all_off()          # ends the stream, marking every actuator off
+                raise
+        host_after = time.monotonic() * 1000.0
+        known = len(guard.overruns)
+        guard.commit(allowed, before, self._now_ms())
+        late = guard.overruns[known:]
+        if late:
+            (k0, on0) = max(late, key=lambda x: x[1])
+            notes = [*notes, Degradation(
+                "late", tuple(k for k, _ in late),
+                f"late: (row {k0[0]}, col {k0[1]}) was on {on0:.0f} ms, above max_on_ms "
+                f"{guard.max_on_ms:g}: the frame that stopped it came late")]
+        self._stream_state = allowed
+        return StreamReport(dict(allowed), len(changes), t_device, host_before, host_after,
+                            notes)
+
+    def stream_deadline_s(self) -> float | None:
+        """Seconds from now by which the stream needs its next frame even if nothing
+        else changes (a train to cut at its maximum on-time, a rest that ends); None
+        if no actuator is on or held off."""
+        if self._guard is None or not self._streaming:
+            return None
+        t = self._guard.next_deadline_ms()
+        return None if t is None else max(0.0, (t - self._now_ms()) / 1000.0)
+
+    def _stream_ended(self) -> None:
+        if self._streaming:
+            if self._guard is not None:
+                self._guard.all_off(self._now_ms())
+            self._stream_state = {}
+            self._streaming = False
+            self._stream_stopped()
 
     def __enter__(self):
         self.open()
@@ -144,6 +289,22 @@ class DeviceBase:
 
     def _close(self) -> None:
         pass
+
+    def _set_outputs(self, changes: Mapping[Actuator, Drive | None], *,
+                     full: bool = False) -> float:
+        """Apply ``changes`` (None = off) at once — with ``full``, as a frame that sets
+        every actuator — and return when they took effect, on the device's clock in ms
+        (the device's report)."""
+        raise NotImplementedError(f"the {self.backend} device cannot stream frames")
+
+    def _stream_started(self) -> None:
+        """A stream begins (a backend with a virtual clock lets it follow real time)."""
+
+    def _stream_stopped(self) -> None:
+        """The stream ended with every actuator off."""
+
+    def _stream_checked_in(self) -> None:
+        """The loop checked in (a backend that models a watchdog checks it here)."""
 
     def _now_ms(self) -> float:
         """The clock that cooling times are measured on."""

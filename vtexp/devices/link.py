@@ -109,6 +109,9 @@ class Link:
         self.lost: str | None = None
         self.lost_at: float | None = None
         self.next_send_at: float | None = None    # host-streamed play: keep heartbeats clear
+        # While set and false, no heartbeat is sent: the host's own loop has stopped
+        # checking in (a live stream), so the device's watchdog should end the session.
+        self.heartbeat_gate: Callable[[], bool] | None = None
         self.heartbeat_s: float | None = None
         self._reader = wire.FrameReader()
         self._cond = threading.Condition()
@@ -341,6 +344,9 @@ class Link:
             nxt = self.next_send_at
             if nxt is not None and -0.001 < nxt - time.perf_counter() < 0.005:
                 continue            # a streamed frame is due in a moment; it feeds the watchdog
+            gate = self.heartbeat_gate
+            if gate is not None and not gate():
+                continue            # the stream's loop is stalled: let the watchdog act
             try:
                 t = time.perf_counter()
                 # A lost heartbeat is sent again at once (a few times) so that one bad

@@ -12,6 +12,10 @@ from the profile, and plays Schedules in one of two ways:
   the device stamps when it applied it (for devices without schedule memory,
   and to measure what device-side timing buys, ``bench/timing.py``).
 
+A live stream (``stream``, ``vtexp live``) sends each frame's changes as a
+sparse ``SET_FRAME``, actuators switched off listed first; the ACK's time is the
+device-reported onset.
+
 Safety is :class:`~vtexp.devices.base.DeviceBase`'s: every Schedule passes
 ``vtexp.safety`` before a byte is written, and every error path ends in
 ALL_OFF. While a schedule plays, ``play``'s ``should_stop`` is polled every few
@@ -38,6 +42,7 @@ from ..model import (
     PlayedPulse,
     PlayReport,
     Pulse,
+    PulseTrain,
     Schedule,
 )
 from . import wire
@@ -75,12 +80,15 @@ DRIVE_NAMES = {v: k for k, v in wire.DRIVE_KINDS.items()}
 
 def setting_of(p: Pulse) -> Setting:
     """A Schedule pulse's drive in wire units (mV, 0.01 Hz, µs)."""
-    if p.level is not None:
-        return Level(p.level)
-    tr = p.train
-    assert tr is not None
-    return Train(round(tr.amplitude_v * 1000), round(tr.frequency_hz * 100),
-                 round(tr.pulse_width_ms * 1000))
+    return drive_setting(p.level if p.level is not None else p.train)
+
+
+def drive_setting(drive: int | PulseTrain) -> Setting:
+    """A level or a pulse train in wire units (mV, 0.01 Hz, µs)."""
+    if isinstance(drive, int):
+        return Level(drive)
+    return Train(round(drive.amplitude_v * 1000), round(drive.frequency_hz * 100),
+                 round(drive.pulse_width_ms * 1000))
 
 
 def change_groups(pulses: list[Pulse], cols: int, off: Setting
@@ -201,6 +209,7 @@ class SerialDevice(DeviceBase):
         self.recovered = {"onsets_fetched": 0, "status_polls": 0}
         self._drive = wire.DRIVE_KINDS[profile.drive.kind]
         self._off = wire.OFF[self._drive]
+        self._outputs: list[Setting] = [self._off] * (profile.rows * profile.cols)
 
     # -- open / close -----------------------------------------------------------------------
     def _open(self) -> DeviceInfo:
@@ -224,6 +233,7 @@ class SerialDevice(DeviceBase):
         link = Link(port, name=self.port, reply_timeout_s=self.reply_timeout_s,
                     retries=self.retries, on_event=self._on_event, trace=self.trace)
         self._link = link
+        self._outputs = [self._off] * (self.profile.rows * self.profile.cols)
         link.start()
         try:
             self.hello = hello = self._handshake(link)
@@ -558,10 +568,63 @@ class SerialDevice(DeviceBase):
         return PlayReport(device=self.profile.name, started_at_ms=start_us / 1000.0,
                           duration_ms=schedule.duration_ms, pulses=report)
 
+    # -- live stream ------------------------------------------------------------------------
+    def stream_watchdog_ms(self) -> float | None:
+        return float(self.hello.watchdog_ms) if self.hello is not None else float(
+            self.watchdog_ms)
+
+    def _stream_started(self) -> None:
+        # Heartbeats only while the stream's loop checks in: a stalled host goes silent,
+        # and the device's watchdog switches everything off.
+        if self._link is not None:
+            limit = self.stream_checkin_ms / 1000.0
+            self._link.heartbeat_gate = lambda: time.monotonic() - self._alive_at < limit
+
+    def _stream_stopped(self) -> None:
+        if self._link is not None:
+            self._link.heartbeat_gate = None
+
+    def _stream_checked_in(self) -> None:
+        # A loop that stalled may find the session ended: say so at once.
+        if self._link is not None and self._link.lost is not None:
+            raise self._lost(self._link.lost)
+
+    def _set_outputs(self, changes, *, full: bool = False) -> float:
+        # Offsets first: a device that applies a frame's changes one after another (or a
+        # frame split in two for its size) never has more actuators on than before or after.
+        cols = self.profile.cols
+        wire_changes = sorted(((r * cols + c, self._off if d is None else drive_setting(d))
+                               for (r, c), d in changes.items()),
+                              key=lambda ch: (not ch[1].is_off, ch[0]))
+        if full:
+            return self._call(lambda link: self._send_full(link, wire_changes))
+        return self._call(lambda link: self._send_outputs(link, wire_changes))
+
+    def _send_full(self, link: Link, changes: list[tuple[int, Setting]]) -> float:
+        state = list(self._outputs)
+        for i, s in changes:
+            state[i] = s
+        ack = link.expect(SetFrameFull(self._drive, tuple(state)), Ack)
+        self._outputs = state
+        return ack.t_us / 1000.0
+
+    def _send_outputs(self, link: Link, changes: list[tuple[int, Setting]]) -> float:
+        applied = None
+        size = wire.SETTINGS[self._drive].SIZE
+        per = max(1, (self._payload_budget() - 3) // (2 + size))
+        for k in range(0, len(changes), per):
+            msg = SetFrame(self._drive, tuple(changes[k:k + per]))
+            ack = link.expect(msg, Ack)
+            applied = ack.t_us if applied is None else applied
+        for i, s in changes:
+            self._outputs[i] = s
+        return applied / 1000.0
+
     # -- all off ----------------------------------------------------------------------------
     def _all_off(self) -> None:
         link = self._link
         self._current = None
+        self._outputs = [self._off] * (self.profile.rows * self.profile.cols)
         if link is None:
             return
         if link.lost is not None:

@@ -7,6 +7,13 @@ well under a second; ``realtime=True`` also takes the schedule's real time,
 switching ``state`` at each onset and offset, for demonstrations in front of
 people. In real time a play polls ``should_stop`` every few ms and, when it
 says stop, records how far it got (a ``stopped`` event) and turns all off.
+
+A live stream (``stream``) always takes real time: while it lasts the clock
+follows ``time.monotonic``, and each frame's changes are recorded (a ``frame``
+event with ``{(row, col): drive or None}``) at the time they were applied. Like a
+device's firmware, it has a watchdog while it streams (``stream_watchdog``, ms):
+when the host's loop has not checked in for that long, everything went off then (a
+``watchdog`` event at that time) and the next call raises ``DeviceError``.
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import SessionAborted
+from ..errors import DeviceError, SessionAborted
 from ..model import DeviceInfo, DeviceProfile, PlayedPulse, PlayReport, Pulse, Schedule
 from .base import DeviceBase
 
@@ -24,7 +31,7 @@ from .base import DeviceBase
 @dataclass
 class SimEvent:
     t_ms: float
-    kind: str                 # "play" | "stopped" | "all_off" | "open" | "close" | "wait"
+    kind: str                 # "play" | "stopped" | "all_off" | "open" | "close" | "wait" | "frame"
     detail: object = None
 
 
@@ -32,6 +39,7 @@ class SimEvent:
 class SimDevice(DeviceBase):
     profile: DeviceProfile
     realtime: bool = False
+    stream_watchdog: float | None = 100.0
     clock_ms: float = 0.0
     history: list[SimEvent] = field(default_factory=list)
     plays: list[PlayReport] = field(default_factory=list)
@@ -42,6 +50,8 @@ class SimDevice(DeviceBase):
         DeviceBase.__init__(self, self.profile)
         # Drive level (or amplitude) of each actuator right now; all zero when idle.
         self.state = np.zeros((self.profile.rows, self.profile.cols), dtype=float)
+        self._stream_mono: float | None = None
+        self._checkin_ms: float | None = None
 
     def _open(self) -> DeviceInfo:
         self.history.append(SimEvent(self.clock_ms, "open"))
@@ -93,14 +103,48 @@ class SimDevice(DeviceBase):
             self.clock_ms += ms
 
     def _now_ms(self) -> float:
+        if self._stream_mono is not None:       # streaming: the clock follows real time
+            t = time.monotonic()
+            self.clock_ms += (t - self._stream_mono) * 1000.0
+            self._stream_mono = t
         return self.clock_ms
+
+    def stream_watchdog_ms(self) -> float | None:
+        return self.stream_watchdog
+
+    def _stream_started(self) -> None:
+        self._stream_mono = time.monotonic()
+        self._checkin_ms = self._now_ms()
+
+    def _stream_stopped(self) -> None:
+        self._now_ms()
+        self._stream_mono = None
+        self._checkin_ms = None
+
+    def _stream_checked_in(self) -> None:
+        now = self._now_ms()
+        last, self._checkin_ms = self._checkin_ms, now
+        wd = self.stream_watchdog
+        if wd is not None and last is not None and now - last > wd:
+            self.state[:] = 0.0
+            self.history.append(SimEvent(last + wd, "watchdog"))
+            raise DeviceError(f"the sim's watchdog switched everything off: the host's loop "
+                              f"was silent for {now - last:.0f} ms (watchdog {wd:g} ms)")
+
+    def _set_outputs(self, changes, *, full: bool = False) -> float:
+        t = self._now_ms()
+        for (r, c), drive in changes.items():
+            self.state[r, c] = 0.0 if drive is None else (
+                float(drive) if isinstance(drive, int) else drive.amplitude_v)
+        self.history.append(SimEvent(t, "frame", dict(changes)))
+        return t
 
     def _rest(self, ms: float) -> None:
         self.wait(ms)
 
     def _all_off(self) -> None:
         self.state[:] = 0.0
-        self.history.append(SimEvent(self.clock_ms, "all_off"))
+        self.history.append(SimEvent(self._now_ms(), "all_off"))
 
     def _close(self) -> None:
         self.history.append(SimEvent(self.clock_ms, "close"))

@@ -30,6 +30,13 @@ cells by contour following with chain codes. This module implements each step:
   (an edge cut by the image border does not enclose a region) and ``edges``
   in 118 (an edge grazing a row of cells lights two rows). docs/decisions.md.
 - :func:`follow_contour` — seed 001 §3.2, in full.
+
+Where on the array (``fit``): ``object`` (default) fits the object's bounding box
+into the array, so a shape fills it wherever it stands before the camera;
+``frame`` fits the camera's whole frame (aspect ratio kept, centred, as seed 000
+eq. 11 maps its image), so an object moving across the frame moves across the
+array — what a live camera needs (``vtexp live``). With ``frame`` the mapping is
+recorded in ``params["to_array"]`` (:mod:`vtexp.encoding.mapping`).
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ from pydantic import Field
 
 from .._cv2 import cv2
 from ..model import Model, Pattern, PatternPoint
+from .mapping import ImageToArray
 from .segment import object_mask
 
 # Chain code of seed 001 Fig. 5: 0 = east, numbered clockwise (rows grow downwards).
@@ -58,6 +66,9 @@ class EdgeTraceParams(Model):
         0.5, description="edges/skeleton modes: edge pixels a cell needs, per pixel of cell width")
     margin_cells: Annotated[float, Field(ge=0, le=10)] = Field(
         0.0, description="empty cells kept around the object's bounding box")
+    fit: Literal["object", "frame"] = Field(
+        "object", description="fit the object's bounding box into the array, or the whole "
+                              "frame (a live camera: the object moves across the array)")
 
 
 def _bbox(mask: np.ndarray) -> tuple[int, int, int, int] | None:
@@ -68,7 +79,8 @@ def _bbox(mask: np.ndarray) -> tuple[int, int, int, int] | None:
 
 
 def fit_to_array(gray: np.ndarray, rows: int, cols: int, *, cells_per_motor: int = 8,
-                 margin_cells: float = 0.0) -> np.ndarray | None:
+                 margin_cells: float = 0.0,
+                 box: tuple[int, int, int, int] | None = None) -> np.ndarray | None:
     """The image resampled so that the object's bounding box fits the array.
 
     Returns a gray canvas of ``(rows + 2) * k x (cols + 2) * k`` pixels
@@ -77,7 +89,8 @@ def fit_to_array(gray: np.ndarray, rows: int, cols: int, *, cells_per_motor: int
     of the surrounding image as a frame, so that edges at the array's border
     are still closed. None if no object is found. Large images are first
     reduced by Gaussian pyramid levels (seed 001 §3.1's pyramid) down to at
-    most twice the needed scale.
+    most twice the needed scale. ``box`` (y0, y1, x0, x1) fits that part of the
+    image instead of the object's bounding box (the whole frame, ``fit="frame"``).
     """
     cv = cv2()
     g = np.asarray(gray)
@@ -86,13 +99,16 @@ def fit_to_array(gray: np.ndarray, rows: int, cols: int, *, cells_per_motor: int
     if g.size == 0 or int(g.max()) == int(g.min()):
         return None
     k = cells_per_motor
-    # Locate the object cheaply on a decimated copy, then cut it from the full image.
-    step = max(1, min(g.shape) // 120)
-    box = _bbox(object_mask(np.ascontiguousarray(g[::step, ::step])))
-    if box is None:
-        return None
-    y0, y1, x0, x1 = box[0] * step, min(box[1] * step, g.shape[0]), box[2] * step, \
-        min(box[3] * step, g.shape[1])
+    if box is not None:
+        y0, y1, x0, x1 = box
+    else:
+        # Locate the object cheaply on a decimated copy, then cut it from the full image.
+        step = max(1, min(g.shape) // 120)
+        found = _bbox(object_mask(np.ascontiguousarray(g[::step, ::step])))
+        if found is None:
+            return None
+        y0, y1, x0, x1 = found[0] * step, min(found[1] * step, g.shape[0]), \
+            found[2] * step, min(found[3] * step, g.shape[1])
     # Cells the box may span, keeping the aspect ratio (eq. 11's rule applied to the object).
     bh, bw = max(y1 - y0, 1), max(x1 - x0, 1)
     px_per_cell = max(bw / max(cols - 2 * margin_cells, 1e-9),
@@ -125,18 +141,18 @@ def sobel_edges(gray: np.ndarray) -> np.ndarray:
 
 
 def cells_covered(mask: np.ndarray, rows: int, cols: int, *, fill_threshold: float = 0.5,
-                  margin_cells: float = 0.0) -> np.ndarray:
+                  margin_cells: float = 0.0, whole: bool = False) -> np.ndarray:
     """Boolean ``rows x cols`` map of the cells an object mask covers.
 
     With a mask of exactly ``rows*k x cols*k`` pixels the cells are its k x k
-    blocks; otherwise the mask's bounding box is first fitted into the array
-    (aspect ratio kept, centred).
+    blocks; otherwise the mask's bounding box (with ``whole``, the whole mask:
+    ``fit="frame"``) is first fitted into the array (aspect ratio kept, centred).
     """
     cv = cv2()
     mask = np.asarray(mask)
-    if mask.shape[0] % rows or mask.shape[1] % cols or \
+    if whole or mask.shape[0] % rows or mask.shape[1] % cols or \
             mask.shape[0] // rows != mask.shape[1] // cols:
-        box = _bbox(mask)
+        box = (0, mask.shape[0], 0, mask.shape[1]) if whole else _bbox(mask)
         if box is None:
             return np.zeros((rows, cols), bool)
         y0, y1, x0, x1 = box
@@ -267,15 +283,21 @@ def follow_contour(cells: np.ndarray) -> list[tuple[list[tuple[int, int]], list[
 
 def edge_cells(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
                cells_per_motor: int = 8, fill_threshold: float = 0.5,
-               edge_fraction: float = 0.5, margin_cells: float = 0.0) -> np.ndarray:
-    """The array's edge cells (bool ``rows x cols``) for ``mode`` (module docstring)."""
+               edge_fraction: float = 0.5, margin_cells: float = 0.0,
+               fit: str = "object") -> np.ndarray:
+    """The array's edge cells (bool ``rows x cols``) for ``mode`` and ``fit`` (module
+    docstring)."""
     cv = cv2()
     k = cells_per_motor
+    whole = fit == "frame"
     if mode == "region":
         # Area coverage of the Otsu object mask, computed from the full-resolution image.
         return boundary(cells_covered(object_mask(np.asarray(gray)), rows, cols,
-                                      fill_threshold=fill_threshold, margin_cells=margin_cells))
-    canvas = fit_to_array(gray, rows, cols, cells_per_motor=k, margin_cells=margin_cells)
+                                      fill_threshold=fill_threshold, margin_cells=margin_cells,
+                                      whole=whole))
+    g = np.asarray(gray)
+    canvas = fit_to_array(gray, rows, cols, cells_per_motor=k, margin_cells=margin_cells,
+                          box=(0, g.shape[0], 0, g.shape[1]) if whole else None)
     if canvas is None:
         return np.zeros((rows, cols), bool)
     inner = (slice(k, -k), slice(k, -k))               # the array, without the frame
@@ -294,7 +316,7 @@ def edge_cells(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
         filled = np.zeros_like(edges)
         cv.drawContours(filled, contours, -1, 1, thickness=cv.FILLED)
         return boundary(cells_covered(filled, rows, cols, fill_threshold=fill_threshold,
-                                      margin_cells=margin_cells))
+                                      margin_cells=margin_cells, whole=whole))
     if mode == "edges":
         line = sobel_edges(canvas)[inner]
     elif mode == "skeleton":
@@ -307,7 +329,8 @@ def edge_cells(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
 
 def edge_trace(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
                cells_per_motor: int = 8, fill_threshold: float = 0.5,
-               edge_fraction: float = 0.5, margin_cells: float = 0.0) -> Pattern:
+               edge_fraction: float = 0.5, margin_cells: float = 0.0,
+               fit: str = "object") -> Pattern:
     """Image -> ordered outline on a ``rows x cols`` array (seed 001 §3).
 
     Points are numbered in activation order over all lists (loops first in the
@@ -323,7 +346,7 @@ def edge_trace(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
     """
     cells = edge_cells(gray, rows, cols, mode=mode, cells_per_motor=cells_per_motor,
                        fill_threshold=fill_threshold, edge_fraction=edge_fraction,
-                       margin_cells=margin_cells)
+                       margin_cells=margin_cells, fit=fit)
     points: list[PatternPoint] = []
     closed: list[int] = []
     order = 0
@@ -333,7 +356,13 @@ def edge_trace(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
         for (r, c), v in zip(path, vertex, strict=True):
             points.append(PatternPoint(row=r, col=c, line=line, order=order, vertex=v))
             order += 1
+    params = {"mode": mode, "cells_per_motor": cells_per_motor,
+              "fill_threshold": fill_threshold, "edge_fraction": edge_fraction,
+              "margin_cells": margin_cells}
+    if fit == "frame":
+        h, w = np.asarray(gray).shape[:2]
+        params["fit"] = fit
+        params["to_array"] = ImageToArray.fit_frame(h, w, rows, cols,
+                                                    margin=margin_cells).as_params()
     return Pattern(rows=rows, cols=cols, points=points, closed=closed, pipeline="edge-trace",
-                   params={"mode": mode, "cells_per_motor": cells_per_motor,
-                           "fill_threshold": fill_threshold, "edge_fraction": edge_fraction,
-                           "margin_cells": margin_cells})
+                   params=params)

@@ -400,7 +400,8 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
 
     Returns a Pattern whose points are the motors of M, each with ``line`` = k
     (1 = lowest). ``params`` records the number of lines, the variance, the line
-    heights and the lattice size, for the session log.
+    heights, the lattice size and where the image lies on the array
+    (``to_array``, :mod:`vtexp.encoding.mapping`), for the session log.
 
     Examples
     --------
@@ -433,9 +434,16 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
     arr = map_to_array(s, n_lines, rows, cols, proportion=proportion, align=align)
     points = [{"row": int(r), "col": int(c), "line": int(arr[r, c])}
               for r, c in zip(*np.nonzero(arr), strict=True)]
+    # Where the lattice put the image (eq. 11): motor centre = centre of its region.
+    mh, mw = wh[1], wh[0]
+    r0, c0 = ((rows - lr) // 2, (cols - lc) // 2) if align == "center" else (0, 0)
+    rs, cs = lr / (f * mh), lc / (f * mw)
+    to_array = {"row": [round(rs, 9), round(r0 + 0.5 * rs - 0.5, 9)],
+                "col": [round(cs, 9), round(c0 + 0.5 * cs - 0.5, 9)]}
     return Pattern.model_validate({
         "rows": rows, "cols": cols, "points": points, "pipeline": "height-contours",
         "params": {"lines": lines, "levels": levels, "proportion": proportion,
                    "cells_per_motor": cells_per_motor, "align": align, "albedo": albedo,
                    "ambient": ambient, "n_lines": n_lines, "variance": round(var, 6),
-                   "line_heights": [round(t, 6) for t in tps], "lattice": [lr, lc]}})
+                   "line_heights": [round(t, 6) for t in tps], "lattice": [lr, lc],
+                   "to_array": to_array}})

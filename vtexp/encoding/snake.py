@@ -43,7 +43,24 @@ The pipeline, :func:`snake_corners`, in order:
    points are scaled back to full-resolution pixels.
 6. **Grid.** The outline is fitted into the array and mapped to the virtual
    grid (:mod:`vtexp.encoding.phantom_grid`): an ordered closed loop,
-   clockwise, with ``corner=True`` where a corner fell.
+   clockwise, with ``corner=True`` where a corner fell. ``fit="frame"`` maps the
+   camera's whole frame onto the array instead of the outline's bounding box, so
+   that an object moving before the camera moves across the pins.
+
+**Tracking** (:class:`SnakeTracker`, the live camera of ``vtexp live``). Seed 002
+§3.1 values the active contour because it is "able to track the object even if
+the object moves": the snake of one frame is where the next frame's snake
+starts. The tracker starts each frame's greedy snake from the previous frame's
+outline (resampled to ``spacing_px``) instead of Otsu's outline. The greedy
+algorithm moves a point at most one pixel per sweep and stops when few points
+move, so on its own a carried snake trails an object that moves a pixel or more
+per frame (its sides parallel to the motion are already on an edge and do not
+move). The carried outline is therefore first moved as a whole, by the whole-pixel
+shift of at most ``track_px`` that minimises its image energy Σ E_img = −Σ‖∇I‖
+(eq. 4's last term for the contour as one rigid body; vtexp's addition), and then
+each point by Williams & Shah's algorithm. A snake that no longer lies on the object (fewer than ``lost_fraction`` of its points end on an
+edge stronger than ``corner_edge``: the object moved further than the snake can
+follow, or left) is started again from Otsu's outline of that frame.
 
 Williams & Shah update points one after another, each seeing its
 predecessor's new position. Here the points are updated in two interleaved
@@ -75,6 +92,7 @@ from pydantic import Field, field_validator
 
 from .._cv2 import cv2
 from ..model import Model, Pattern
+from .mapping import ImageToArray
 from .phantom_grid import fit_to_array, grid_path
 from .segment import object_mask
 
@@ -129,6 +147,16 @@ class SnakeCornersParams(Model):
     subpixel: bool = Field(
         True, description="move snake points to the sub-pixel edge along their normal "
                           "(vtexp's addition, not Williams & Shah's)")
+    fit: Literal["object", "frame"] = Field(
+        "object", description="fit the outline's bounding box into the array, or the whole "
+                              "frame (a live camera: the object moves across the pins)")
+    track_px: Annotated[int, Field(ge=0, le=32)] = Field(
+        6, description="tracking: largest whole-pixel shift (working pixels) of the carried "
+                       "outline as a whole before the snake runs (module docstring)")
+    lost_fraction: Annotated[float, Field(ge=0, le=1)] = Field(
+        0.5, description="tracking: a snake carried over from the previous frame is lost, "
+                         "and started again from Otsu's outline, when fewer than this share "
+                         "of its points end on an edge stronger than corner_edge")
 
     @field_validator("window")
     @classmethod
@@ -142,7 +170,10 @@ class SnakeCornersParams(Model):
 class SnakeResult:
     """An outline found by :func:`find_outline`, in full-resolution pixels.
 
-    ``points`` are (row, col); ``corner`` flags the points held on a corner.
+    ``points`` are (row, col); ``corner`` flags the points held on a corner;
+    ``shape`` is the image's (height, width); ``init`` says where the snake started
+    (``otsu``, or ``carried`` over from the previous frame); ``on_edge`` is the share
+    of its free points that ended on a strong edge (``corner_edge``).
     """
 
     points: np.ndarray
@@ -150,6 +181,9 @@ class SnakeResult:
     factor: int = 1
     iterations: int = 0
     warnings: list[str] = field(default_factory=list)
+    shape: tuple[int, int] | None = None
+    init: str = "otsu"
+    on_edge: float = 1.0
 
     @property
     def empty(self) -> bool:
@@ -453,13 +487,16 @@ def contour_corners(smooth: np.ndarray, gx: np.ndarray, gy: np.ndarray, contour:
     return rc[ratios >= isotropy]
 
 
-def find_outline(gray: np.ndarray, **params) -> SnakeResult:
+def find_outline(gray: np.ndarray, init: np.ndarray | None = None, **params) -> SnakeResult:
     """An object's outline by the snake with corners (steps 1-5 of the module docstring).
 
     Parameters
     ----------
     gray : 2-D array
         Grayscale image, any size; uint8 or float in 0..255.
+    init : (n, 2) array, optional
+        Where the snake starts, in full-resolution (row, col): the previous frame's
+        outline when tracking (:class:`SnakeTracker`). Default: Otsu's outline.
     **params
         Keys of :class:`SnakeCornersParams`.
 
@@ -473,11 +510,21 @@ def find_outline(gray: np.ndarray, **params) -> SnakeResult:
     gray = _as_gray(gray)
     work, f = working_image(gray, p.work_px)
     smooth, gx, gy, edge = edge_strength(work, p.blur_sigma)
-    init = initial_contour(smooth, spacing_px=p.spacing_px, min_area=p.min_area)
+    shape = (int(gray.shape[0]), int(gray.shape[1]))
+    started = "otsu"
+    if init is not None:
+        init = carried_contour(init, f, edge.shape, spacing_px=p.spacing_px,
+                               margin=p.window // 2)
+        if init is not None:
+            init = rigid_shift(edge, init, p.track_px, margin=p.window // 2)
+        started = "carried"
+    if init is None:
+        started = "otsu"
+        init = initial_contour(smooth, spacing_px=p.spacing_px, min_area=p.min_area)
     if init is None:
         return SnakeResult(np.zeros((0, 2)), np.zeros(0, bool), f, 0,
                            [("no object found: the image is uniform or the object is "
-                             f"smaller than min_area={p.min_area} of the image")])
+                             f"smaller than min_area={p.min_area} of the image")], shape)
     # Corners first (step 3): found on the initial contour, refined to sub-pixel precision,
     # and held by the nearest snake points, which then do not move and have β = 0.
     pts = init.copy()
@@ -504,13 +551,106 @@ def find_outline(gray: np.ndarray, **params) -> SnakeResult:
                                    stop_fraction=p.stop_fraction,
                                    corner_curvature=p.corner_curvature,
                                    corner_edge=p.corner_edge, fixed=corner)
+    free = ~corner
+    on_edge = float(np.mean(edge[pts[free, 0], pts[free, 1]] > p.corner_edge)) \
+        if free.any() else 1.0
     sub = subpixel_edges(edge, pts, ~corner) if p.subpixel else pts.astype(np.float64)
     if not p.subpixel:
         exact = np.floor(exact + 0.5)
     if corner.any():
         sub[corner] = exact[corner]
     full = sub * float(f) + (f - 1) / 2.0
-    return SnakeResult(full, corner, f, its)
+    return SnakeResult(full, corner, f, its, shape=shape, init=started, on_edge=on_edge)
+
+
+def carried_contour(points: np.ndarray, factor: int, shape: tuple[int, int], *,
+                    spacing_px: float, margin: int = 1) -> np.ndarray | None:
+    """A previous frame's outline (full-resolution (row, col)) as the next snake's start:
+    in working pixels, resampled every ``spacing_px`` along its length, kept ``margin``
+    pixels inside the image. None if fewer than 3 distinct points remain."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(pts) < 3:
+        return None
+    work = (pts - (factor - 1) / 2.0) / float(factor)
+    out = resample_closed(work, spacing_px)
+    h, w = shape
+    out[:, 0] = np.clip(out[:, 0], margin, h - 1 - margin)
+    out[:, 1] = np.clip(out[:, 1], margin, w - 1 - margin)
+    keep = np.any(out != np.roll(out, 1, axis=0), axis=1)
+    out = out[keep]
+    return out if len(out) >= 3 else None
+
+
+def rigid_shift(edge: np.ndarray, points: np.ndarray, radius: int, *, margin: int = 1
+                ) -> np.ndarray:
+    """``points`` moved as a whole by the whole-pixel shift (each coordinate within
+    ``±radius``) that maximises the sum of ‖∇I‖ under them — the least image energy
+    of eq. 4 for the contour as one rigid body; the smallest shift on ties. Points
+    stay ``margin`` pixels inside the image."""
+    pts = np.asarray(points, dtype=np.int64).reshape(-1, 2)
+    if radius <= 0 or not len(pts):
+        return pts
+    h, w = edge.shape
+    d = np.arange(-radius, radius + 1)
+    dr, dc = np.meshgrid(d, d, indexing="ij")
+    dr, dc = dr.ravel(), dc.ravel()
+    rr = np.clip(pts[None, :, 0] + dr[:, None], margin, h - 1 - margin)
+    cc = np.clip(pts[None, :, 1] + dc[:, None], margin, w - 1 - margin)
+    score = edge[rr, cc].sum(axis=1)
+    best = score.max()
+    ties = np.flatnonzero(score >= best - 1e-6 * max(abs(best), 1.0))
+    k = ties[np.argmin(dr[ties] ** 2 + dc[ties] ** 2)]
+    return np.stack([rr[k], cc[k]], axis=1)
+
+
+class SnakeTracker:
+    """Seed 002's snake followed from frame to frame (module docstring, *Tracking*).
+
+    Each call of :meth:`outline` starts the snake from the previous frame's outline;
+    when that snake is lost (``lost_fraction``), or there is no previous outline, from
+    Otsu's outline of the frame. ``restarts`` counts the frames started again.
+
+    Examples
+    --------
+    >>> from vtexp.stimuli import render_shape
+    >>> tracker = SnakeTracker(fit="frame")
+    >>> [tracker.pattern(render_shape(shape="square", center_x=x), 5, 5).params["snake_init"]
+    ...  for x in (0.40, 0.42)]
+    ['otsu', 'carried']
+    """
+
+    def __init__(self, **params):
+        self.params = SnakeCornersParams(**params)
+        self.previous: SnakeResult | None = None
+        self.restarts = 0
+
+    def reset(self) -> None:
+        self.previous = None
+
+    def outline(self, gray: np.ndarray) -> SnakeResult:
+        p = self.params
+        kw = p.model_dump()
+        gray = _as_gray(gray)
+        res = None
+        prev = self.previous
+        if prev is not None and prev.shape == gray.shape:
+            res = find_outline(gray, init=prev.points, **kw)
+            if res.empty or res.on_edge < p.lost_fraction:
+                self.restarts += 1
+                res = None
+        if res is None:
+            res = find_outline(gray, **kw)
+        self.previous = None if res.empty else res
+        return res
+
+    def pattern(self, gray: np.ndarray, rows: int, cols: int) -> Pattern:
+        """This frame's Pattern, as :func:`snake_corners` makes it, from the tracked snake."""
+        p = self.params
+        res = self.outline(gray)
+        return outline_pattern(res, rows, cols, subdivisions=p.subdivisions, margin=p.margin,
+                               closed=True, pipeline="snake-corners",
+                               params={**p.model_dump(), "snake_init": res.init},
+                               fit=p.fit)
 
 
 def subpixel_edges(edge: np.ndarray, points: np.ndarray, which: np.ndarray | None = None,
@@ -668,19 +808,30 @@ def snake_corners(gray: np.ndarray, rows: int, cols: int, **params) -> Pattern:
     p = SnakeCornersParams(**params)
     res = find_outline(gray, **p.model_dump())
     return outline_pattern(res, rows, cols, subdivisions=p.subdivisions, margin=p.margin,
-                           closed=True, pipeline="snake-corners", params=p.model_dump())
+                           closed=True, pipeline="snake-corners", params=p.model_dump(),
+                           fit=p.fit)
 
 
 def outline_pattern(res: SnakeResult, rows: int, cols: int, *, subdivisions: int,
-                    margin: float, closed: bool, pipeline: str, params: dict) -> Pattern:
-    """A Pattern of one loop or path from image points (shared with ``spiral-path``)."""
+                    margin: float, closed: bool, pipeline: str, params: dict,
+                    fit: str = "object") -> Pattern:
+    """A Pattern of one loop or path from image points (shared with ``spiral-path``).
+
+    ``fit="frame"`` maps the image's whole frame onto the array (recorded in
+    ``params["to_array"]``); ``object``, the points' bounding box."""
     notes = list(res.warnings)
+    if fit == "frame" and res.shape is not None:
+        to_array = ImageToArray.fit_frame(res.shape[0], res.shape[1], rows, cols, margin=margin)
+        params = {**params, "to_array": to_array.as_params()}
     if res.empty:
         for w in notes:
             warnings.warn(f"{pipeline}: {w}; the pattern is empty", UserWarning, stacklevel=3)
         return Pattern(rows=rows, cols=cols, points=[], closed=[], pipeline=pipeline,
                        params={**params, "warnings": notes})
-    arr = fit_to_array(res.points, rows, cols, margin=margin)
+    if fit == "frame" and res.shape is not None:
+        arr = np.minimum(np.maximum(to_array.to_array(res.points), 0.0), [rows - 1, cols - 1])
+    else:
+        arr = fit_to_array(res.points, rows, cols, margin=margin)
     grid, flags, dropped, repeated = grid_path(arr, res.corner, rows, cols, closed=closed,
                                                subdivisions=subdivisions)
     if dropped:

@@ -96,6 +96,11 @@ class ObserverModel:
     def for_experiment(cls, lx: LoadedExperiment, profile: DeviceProfile | None = None, *,
                        params_file=None, overrides: dict | None = None) -> ObserverModel:
         exp = lx.experiment
+        cams = [n for n, s in exp.stimuli.items() if s.is_camera]
+        if cams:
+            raise lx.error("a model participant cannot feel a camera stimulus (what the camera "
+                           "will see is not known in advance); use a person or a scripted "
+                           "responder", ("stimuli", cams[0]))
         spec = getattr(exp, "observer", None) or ObserverSpec()
         profile = profile or DeviceProfile.load(exp.device)
         try:

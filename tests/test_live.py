@@ -1,0 +1,403 @@
+"""vtexp live: generated video files (OpenCV's VideoWriter) through each pipeline to the sim
+device and to the emulated firmware over a real pty; what the device drove audited by
+safety.check_schedule; tracking error against the videos' true centroids; every bad input
+in one message with every actuator off; Ctrl-C; the record and its replay."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from conftest import ROOT, run_cli
+from vtexp._cv2 import cv2
+from vtexp.devices import open_device
+from vtexp.encoding.mapping import ImageToArray
+from vtexp.errors import InputError
+from vtexp.live import LiveSetup, open_source, run_live
+from vtexp.live.loop import ClockMap, LiveRun
+from vtexp.live.encoder import LiveEncoder
+from vtexp.live.program import Program, carried_epoch
+from vtexp.live.record import load_record, parse_state, format_state
+from vtexp.live.sources import ArraySource, LatestFrame, Frame
+from vtexp.live.synthetic import tracking_errors, write_video
+from vtexp.model import DeviceProfile, Pattern, Pulse, PulseTrain, Schedule
+from vtexp.safety import check_schedule, outputs_schedule
+
+VEST = DeviceProfile.load("vest_6x8")
+SMA = DeviceProfile.load("sma_5x5")
+
+
+@pytest.fixture(scope="module")
+def videos(tmp_path_factory):
+    d = tmp_path_factory.mktemp("videos")
+    out = {}
+    for name, kind, seconds, size in [("rectangle", "rectangle", 3.0, 0.5),
+                                      ("ball", "ball", 2.5, 0.6),
+                                      ("horse", "horse", 3.0, 0.55)]:
+        path = d / f"{name}.avi"
+        out[name] = (path, write_video(path, kind, seconds=seconds, size=size))
+    return out
+
+
+def emulator_changes(dev):
+    from vtexp.devices.wire import Level
+
+    cols = dev.profile.cols
+    out = []
+    for a in dev.emulator.actuations():
+        s = a.setting
+        drive = None if s.is_off else (s.level if isinstance(s, Level) else PulseTrain(
+            amplitude_v=s.amplitude_mv / 1000, frequency_hz=s.frequency_chz / 100,
+            pulse_width_ms=s.width_us / 1000))
+        out.append((a.t_us / 1000.0, divmod(a.index, cols), drive))
+    return out
+
+
+def one_line_error(r, *, code=2):
+    assert r.returncode == code, (r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr, r.stderr
+    errors = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(errors) == 1 and errors[0].startswith("vtexp: error: "), r.stderr
+    return errors[0]
+
+
+# --------------------------------------------------------------------------- the cycle
+
+
+def test_a_trace_cycle_wraps_its_last_point_into_the_next_cycle():
+    pat = Pattern(rows=8, cols=6, points=[{"row": 0, "col": c, "order": c} for c in range(3)])
+    sched = Schedule(device="vest_6x8", pulses=[
+        Pulse(row=0, col=c, onset_ms=200 * c, duration_ms=300, level=1) for c in range(3)])
+    prog = Program.build(sched, pat, 600.0)
+    # 0-100: point 0 and the tail of point 2 from the previous cycle; then 0; 0+1; 1; ...
+    assert prog.times == [0.0, 100.0, 200.0, 300.0, 400.0, 500.0]
+    assert prog.state_at(50) == {(0, 0): 1, (0, 2): 1}
+    assert prog.state_at(150) == {(0, 0): 1}
+    assert prog.state_at(250) == {(0, 0): 1, (0, 1): 1}
+    assert prog.ms_to_next_change(450) == 50
+    held = Program.build(sched, pat, 600.0, hold=True)
+    assert held.state_at(0) == held.state_at(599) == {(0, 0): 1, (0, 1): 1, (0, 2): 1}
+    assert held.ms_to_next_change(10) == float("inf")
+
+
+def test_a_new_cycle_takes_over_at_the_same_fraction_of_its_cycle():
+    pat = Pattern(rows=8, cols=6)
+    old = Program.build(Schedule(device="vest_6x8"), pat, 1000.0)
+    new = Program.build(Schedule(device="vest_6x8"), pat, 2000.0)
+    epoch = carried_epoch(10.25, old, 10.0, new)       # old at 250 of 1000 ms
+    assert new.phase(10.25, epoch) == pytest.approx(500.0)
+
+
+def test_the_mailbox_keeps_the_newest_frame_and_counts_the_others_dropped():
+    box = LatestFrame()
+    for k in range(3):
+        box.put(Frame(k, 0.0, np.zeros((16, 16), np.uint8)))
+    assert box.take().index == 2 and box.dropped == 2 and box.take() is None
+
+
+def test_the_clock_map_uses_the_shortest_round_trip():
+    c = ClockMap()
+    c.add(100.0, 110.0, 5000.0)      # device clock 4895 ms ahead, +-5 ms
+    c.add(200.0, 201.0, 5100.6)      # +-0.5 ms: this one is used
+    assert c.to_host_ms(5100.6) == pytest.approx(200.5)
+    assert c.uncertainty_ms == pytest.approx(0.5)
+
+
+def test_states_are_written_and_read_back():
+    st = {(0, 1): 2, (3, 4): PulseTrain(amplitude_v=1.4142, frequency_hz=40, pulse_width_ms=1.5)}
+    assert parse_state(format_state(st)) == st
+
+
+# --------------------------------------------------------------------------- live runs
+
+
+@pytest.mark.parametrize("pipeline, video, play", [
+    ("edge-trace", "rectangle", "cycle"), ("snake-corners", "rectangle", "cycle"),
+    ("height-contours", "ball", "cycle"), ("edge-trace", "rectangle", "hold")])
+def test_a_video_felt_live_on_the_emulator(tmp_path, videos, pipeline, video, play):
+    """Real frames from a real video file, the real emulated firmware over a pty: the device
+    drove nothing unsafe, the array followed the object within half a pitch on average,
+    every frame was accounted for, and glass-to-skin latencies were measured."""
+    path, truth = videos[video]
+    setup = LiveSetup.make(pipeline, play=play)
+    dev = open_device("emulator", setup.profile)
+    try:
+        res = run_live(open_source(str(path)), setup, dev, record=tmp_path / "rec")
+        assert dev.emulator.all_outputs_off()
+        history = emulator_changes(dev)
+    finally:
+        dev.close()
+    st = res.stats
+    assert st.end_reason.startswith("end of video")
+    assert st.frames_captured == len(truth)
+    assert st.frames_processed + st.frames_dropped == st.frames_captured
+    assert st.latencies_ms and min(st.latencies_ms) > 0       # onsets after their capture
+    assert history, "the device drove nothing"
+    check_schedule(outputs_schedule(history, setup.profile), setup.profile)
+    rec = load_record(tmp_path / "rec")
+    assert rec.meta["status"] == "completed" and rec.cut_rows == 0
+    assert len(rec.frames) == st.frames_processed
+    m = ImageToArray.from_params(rec.programs[0]["pattern"]["params"])
+    err = tracking_errors(rec.frames, truth, m)
+    assert len(err) >= 0.9 * st.frames_processed
+    assert err.mean() <= 0.5, f"tracking error {err.mean():.2f} pitches"
+    assert rec.states()[-1][1] == {}                          # the run ended all off
+    if pipeline == "snake-corners":
+        inits = list(rec.frames["snake_init"])
+        assert inits[0] == "otsu" and inits.count("carried") >= 0.9 * len(inits)
+
+
+def test_the_horse_refused_as_one_schedule_degrades_live_and_nothing_unsafe_is_sent(
+        tmp_path, videos):
+    """The horse on the SMA panel breaks max_on_ms as one schedule (vtexp encode refuses it).
+    Held live for a long run (10 s), the stream cuts trains, rests pins, keeps to the power
+    budget and says so; what the emulated panel — in a process of its own, as a real array
+    is apart from the host — drove passes check_schedule."""
+    path, _ = videos["horse"]
+    first = str(path.with_suffix(".png"))
+    cap = cv2().VideoCapture(str(path))
+    ok, img = cap.read()
+    cap.release()
+    cv2().imwrite(first, img)
+    r = run_cli("encode", first, "--pipeline", "snake-corners", "--device", "sma_5x5",
+                "--param", "fit=frame")
+    assert r.returncode == 2 and "above max_on_ms 1000" in r.stderr, r.stderr
+
+    out = tmp_path / "actuations.json"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    child = subprocess.Popen([sys.executable, str(ROOT / "tests" / "emulator_child.py"),
+                              "sma_5x5", str(out)], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        port = child.stdout.readline().split()[1]
+        setup = LiveSetup.make("snake-corners", play="hold")
+        frames = list(_frames_of(path))
+        loop = (frames[k % len(frames)] for k in range(300))   # to and fro for 10 s
+        with open_device(f"serial:{port}", SMA) as dev:
+            res = run_live(ArraySource(loop, fps=30.0, label="horse video, looped"), setup,
+                           dev, record=tmp_path / "rec")
+    finally:
+        child.stdin.close()
+        child.wait(timeout=30)
+    done = json.loads(out.read_text())
+    assert done["all_off"]
+    history = [(t / 1000.0, divmod(i, SMA.cols),
+                PulseTrain(amplitude_v=a / 1000, frequency_hz=f / 100, pulse_width_ms=w / 1000)
+                if a else None) for t, i, _, a, f, w in done["actuations"]]
+    kinds = res.stats.degradations
+    assert kinds["max_on"] > 0 and kinds["rest"] > 0 and kinds["budget"] > 0
+    audited = outputs_schedule(history, SMA)
+    check_schedule(audited, SMA)
+    rec = load_record(tmp_path / "rec")
+    assert rec.outputs["degradations"].str.contains("max_on").any()
+    assert rec.meta["summary"]["safety_deadlines"]["n"] > 0
+
+
+def _frames_of(path):
+    cap = cv2().VideoCapture(str(path))
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        yield cv2().cvtColor(img, cv2().COLOR_BGR2GRAY)
+    cap.release()
+
+
+def test_vtexp_live_records_a_run_that_can_be_audited_and_replayed(tmp_path, videos):
+    path, _ = videos["rectangle"]
+    rec = tmp_path / "rec"
+    r = run_cli("live", str(path), "--pipeline", "snake-corners", "--device", "sim",
+                "--record", str(rec))
+    assert r.returncode == 0, r.stderr
+    assert "fps" in r.stdout and "glass-to-skin latency" in r.stdout
+    assert "every actuator is off" in r.stdout
+    lr = load_record(rec)
+    assert lr.meta["status"] == "completed" and lr.meta["summary"]["frames_processed"] > 0
+    assert lr.meta["pipeline"] == "snake-corners" and lr.meta["profile"]["name"] == "sma_5x5"
+    # What was sent, stamped on the host's clock, is within the limits as well.
+    changes = []
+    prev: dict = {}
+    for t, state in lr.states():
+        for k in prev.keys() | state.keys():
+            if prev.get(k) != state.get(k):
+                changes.append((t, k, state.get(k)))
+        prev = state
+    check_schedule(outputs_schedule(changes, SMA), SMA)
+    again = run_cli("live-replay", str(rec), "--device", "emulator")
+    assert again.returncode == 0, again.stderr
+    assert "replayed; every actuator is off" in again.stdout
+    # An existing record folder is never written into.
+    r = run_cli("live", str(path), "--pipeline", "snake-corners", "--record", str(rec))
+    assert "already exists" in one_line_error(r)
+
+
+def test_frames_from_another_program_on_standard_input(tmp_path):
+    producer = ("import sys\nfrom vtexp.stimuli import render_shape\n"
+                "for k in range(45):\n"
+                "    img = render_shape(shape='square', width=160, height=120, size=0.5,"
+                " center_x=0.3 + 0.01 * k)\n"
+                "    sys.stdout.buffer.write(img.tobytes())\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p1 = subprocess.Popen([sys.executable, "-c", producer], stdout=subprocess.PIPE, env=env)
+    r = subprocess.run([sys.executable, "-m", "vtexp", "live", "-", "--pipeline", "edge-trace",
+                        "--frame-size", "160x120", "--record", str(tmp_path / "rec")],
+                       stdin=p1.stdout, capture_output=True, text=True, env=env, timeout=120)
+    p1.stdout.close()
+    p1.wait()
+    assert r.returncode == 0, r.stderr
+    assert "end of standard input" in r.stdout
+    rec = load_record(tmp_path / "rec")
+    assert 0 < len(rec.frames) <= 45 and rec.meta["summary"]["frames_captured"] == 45
+
+
+def test_a_folder_of_images(tmp_path):
+    from vtexp.stimuli import render_shape
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(20):
+        cv2().imwrite(str(folder / f"f{k:03d}.png"),
+                      render_shape(shape="circle", width=320, height=240, center_x=0.3 + 0.02 * k))
+    r = run_cli("live", str(folder), "--pipeline", "height-contours", "--fps", "20")
+    assert r.returncode == 0, r.stderr
+    assert "live: 20 frames" in r.stdout or "captured 20" in r.stdout
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def test_no_camera_is_one_message(tmp_path):
+    r = run_cli("live", "camera:7", "--pipeline", "edge-trace", "--device", "emulator")
+    assert "no camera at index 7" in one_line_error(r)
+
+
+@pytest.mark.parametrize("content, expected", [
+    (b"", "not a readable video"), (b"RIFF\x00\x00\x00\x00AVI LIST" + b"\x01" * 500,
+                                     "not a readable video")])
+def test_an_unreadable_video_is_one_message(tmp_path, content, expected):
+    bad = tmp_path / "broken.avi"
+    bad.write_bytes(content)
+    r = run_cli("live", str(bad), "--pipeline", "edge-trace")
+    line = one_line_error(r)
+    assert expected in line and "broken.avi" in line
+
+
+def test_a_video_cut_short_plays_what_it_has(tmp_path, videos):
+    path, _ = videos["rectangle"]
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 3])
+    r = run_cli("live", str(cut), "--pipeline", "edge-trace", "--device", "emulator")
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert "every actuator is off" in r.stdout
+
+
+def test_a_frame_of_another_size_stops_with_everything_off(tmp_path):
+    from vtexp.stimuli import render_shape
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(12):
+        w, h = (320, 240) if k != 8 else (200, 150)
+        cv2().imwrite(str(folder / f"f{k:03d}.png"),
+                      render_shape(shape="square", width=w, height=h, center_x=0.3 + 0.02 * k))
+    r = run_cli("live", str(folder), "--pipeline", "edge-trace", "--device", "emulator",
+                "--record", str(tmp_path / "rec"))
+    line = one_line_error(r)
+    assert "frame 8 (f008.png)" in line and "200x150" in line and "320x240" in line
+    rec = load_record(tmp_path / "rec")
+    assert rec.meta["status"] == "failed" and rec.states()[-1][1] == {}
+
+
+@pytest.mark.parametrize("frame, expected", [
+    (np.zeros((120, 160), np.float64), "float64"),
+    (np.zeros((120, 160, 2), np.uint8), r"shape \(120, 160, 2\)"),
+    (np.zeros((8, 8), np.uint8), "at least 16x16")])
+def test_a_frame_of_the_wrong_type_stops_with_everything_off(frame, expected):
+    from vtexp.stimuli import render_shape
+
+    good = [render_shape(shape="square", width=160, height=120, center_x=0.3 + 0.02 * k)
+            for k in range(10)]
+    setup = LiveSetup.make("edge-trace")
+    dev = open_device("emulator", VEST)
+    try:
+        with pytest.raises(InputError, match=expected):
+            run_live(ArraySource([*good, frame], fps=30), setup, dev)
+        assert dev.emulator.all_outputs_off()
+        assert any(not s.is_off for s in [a.setting for a in dev.emulator.actuations()])
+    finally:
+        dev.close()
+
+
+def test_a_camera_that_stops_delivering_is_one_message(tmp_path):
+    producer = ("import sys, time\nfrom vtexp.stimuli import render_shape\n"
+                "for k in range(20):\n"
+                "    sys.stdout.buffer.write(render_shape(shape='square', width=160, height=120,"
+                " center_x=0.3 + 0.01 * k).tobytes()); sys.stdout.flush(); time.sleep(0.03)\n"
+                "time.sleep(30)\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p1 = subprocess.Popen([sys.executable, "-c", producer], stdout=subprocess.PIPE, env=env)
+    try:
+        r = subprocess.run([sys.executable, "-m", "vtexp", "live", "-", "--pipeline",
+                            "edge-trace", "--frame-size", "160x120", "--device", "emulator",
+                            "--stall-s", "1", "--record", str(tmp_path / "rec")],
+                           stdin=p1.stdout, capture_output=True, text=True, env=env, timeout=60)
+    finally:
+        p1.kill()
+        p1.wait()
+    assert "standard input stopped delivering frames (none for 1 s)" in one_line_error(r)
+    rec = load_record(tmp_path / "rec")
+    assert rec.meta["status"] == "failed" and rec.states()[-1][1] == {}
+
+
+def test_ctrl_c_stops_with_everything_off(tmp_path, videos):
+    path, _ = videos["rectangle"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p = subprocess.Popen([sys.executable, "-m", "vtexp", "live", str(path), "--pipeline",
+                          "snake-corners", "--device", "emulator", "--record",
+                          str(tmp_path / "rec")], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.monotonic() + 60
+    while not (tmp_path / "rec" / "outputs.tsv").exists() or \
+            len((tmp_path / "rec" / "outputs.tsv").read_text().splitlines()) < 4:
+        assert time.monotonic() < deadline and p.poll() is None
+        time.sleep(0.05)
+    p.send_signal(signal.SIGINT)
+    out, errs = p.communicate(timeout=30)
+    assert p.returncode == 130, (out, errs)
+    assert "Traceback" not in errs
+    assert [ln for ln in errs.splitlines() if ln] == [
+        f"vtexp: error: interrupted (Ctrl-C); every actuator is off; the record in "
+        f"{tmp_path / 'rec'} is complete up to here"]
+    rec = load_record(tmp_path / "rec")
+    assert rec.meta["status"] == "interrupted" and rec.states()[-1][1] == {}
+
+
+def test_a_stop_asked_for_mid_run_turns_everything_off_on_the_device(videos):
+    path, _ = videos["rectangle"]
+    setup = LiveSetup.make("edge-trace", play="hold")
+    dev = open_device("emulator", VEST)
+    t_end = time.monotonic() + 1.0
+    try:
+        run = LiveRun(open_source(str(path)), LiveEncoder(setup), dev,
+                      should_stop=lambda: time.monotonic() > t_end and "the experimenter stopped")
+        st = run.run()
+        assert st.end_reason == "the experimenter stopped"
+        assert dev.emulator.all_outputs_off()
+    finally:
+        dev.close()
+
+
+def test_live_options_are_checked():
+    r = run_cli("live", "x.avi", "--pipeline", "spiral-path")
+    assert "unknown live pipeline 'spiral-path'" in one_line_error(r)
+    r = run_cli("live", "x.avi", "--pipeline", "edge-trace", "--coding-param", "loops=3")
+    assert "leave out loops" in one_line_error(r)
+    r = run_cli("live", "x.avi", "--pipeline", "edge-trace", "--param", "fit=everything")
+    assert "--param fit" in one_line_error(r)

@@ -1,0 +1,444 @@
+"""The live loop: newest frame -> pattern -> cycle -> the device, changes only.
+
+One thread (:meth:`LiveRun.run`) does everything that touches the device, in this
+order, as often as something happens:
+
+1. take the newest frame from the capture thread's mailbox, if there is one
+   (frames it had no time for were dropped there, never queued); encode and code
+   it (:class:`~vtexp.live.encoder.LiveEncoder`); a cycle that differs from the one
+   playing replaces it at the same fraction of its cycle
+   (:func:`~vtexp.live.program.carried_epoch`);
+2. work out what the array should do now (the cycle's state at this phase) and,
+   if that changed, or the device's guard needs a frame (a train to cut at its
+   maximum on-time, a rest that ends), send it: ``device.stream`` holds the
+   profile's limits across frames (:class:`~vtexp.safety.StreamGuard`) and sends
+   only the outputs that change;
+3. sleep until the next of: a new frame, the cycle's next change, the guard's next
+   deadline, the end of the run — and never longer than half the device's check-in
+   period (``stream_checkin_ms``): a loop that stops checking in lets the device's
+   watchdog switch everything off. If that happened (the host stalled), the device is
+   opened again and the run goes on (counted as ``reconnects``, said on screen).
+
+It stops at the end of the source, after ``duration_s``, when ``should_stop`` says
+so (the preview's Escape, Ctrl-C), or on an error — a source that cannot be read,
+stops delivering (nothing for ``stall_s``) or gives a wrong frame; a device fault —
+and in every case every actuator is off before :meth:`LiveRun.run` returns or
+raises.
+
+**Glass-to-skin latency** of a change is the time from the capture of the frame
+that first showed it to the device-reported onset of the first output it changed:
+the first output sent that differs from what the cycle playing before that frame
+would have asked at that moment. A frame whose cycle equals the one playing changed
+nothing (counted as unchanged, no latency). Frames that change the cycle again
+before the first change was felt (a trace that has not reached the place that
+changed) join that change (counted as merged): its latency still runs from the
+first of them, so slow changes are not left out of the figures. With a cycle played
+in time (a trace), a change away from the point being played is felt when the
+trace gets there; held patterns are felt at once. The device reports onsets on its
+own clock; they are put on the host's clock (``time.monotonic``) by
+:class:`ClockMap`.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..devices.base import DeviceBase, StreamReport
+from ..errors import DeviceError, InputError, SessionAborted
+from ..safety import Actuator, Drive
+from .encoder import Encoded, LiveEncoder
+from .program import Program, carried_epoch
+from .sources import Capture, Frame, FrameSource, LatestFrame, SourceEnded
+
+
+class ClockMap:
+    """The device's clock on the host's: offset from the exchange with the shortest round
+    trip among the last ``window`` (the device stamped the change between the host's
+    before and after, so the error is at most half that round trip)."""
+
+    def __init__(self, window: int = 256):
+        self._samples: deque[tuple[float, float]] = deque(maxlen=window)
+        self._best: tuple[float, float] | None = None
+
+    def add(self, before_ms: float, after_ms: float, device_ms: float) -> None:
+        rtt = after_ms - before_ms
+        sample = (rtt, device_ms - (before_ms + after_ms) / 2.0)
+        self._samples.append(sample)
+        if self._best is None or rtt <= self._best[0] or len(self._samples) % 32 == 0:
+            self._best = min(self._samples)
+
+    @property
+    def uncertainty_ms(self) -> float:
+        return math.inf if self._best is None else self._best[0] / 2.0
+
+    def to_host_ms(self, device_ms: float) -> float:
+        if self._best is None:
+            raise ValueError("no exchange with the device yet")
+        return device_ms - self._best[1]
+
+
+@dataclass
+class LiveStats:
+    """What a run measured (also what the preview shows)."""
+
+    started: float = 0.0
+    ended: float = 0.0
+    frames_captured: int = 0
+    frames_processed: int = 0
+    frames_dropped: int = 0
+    frames_unchanged: int = 0
+    frames_merged: int = 0
+    frames_empty: int = 0
+    latencies_ms: list[float] = field(default_factory=list)
+    process_ms: list[float] = field(default_factory=list)
+    deadline_late_ms: list[float] = field(default_factory=list)
+    outputs_sent: int = 0
+    changes_sent: int = 0
+    reconnects: int = 0
+    degradations: Counter = field(default_factory=Counter)
+    last_notes: list[str] = field(default_factory=list)
+    last_notes_at: float = 0.0
+    recent: deque = field(default_factory=lambda: deque(maxlen=64))
+    end_reason: str = ""
+
+    @property
+    def elapsed_s(self) -> float:
+        return max((self.ended or time.monotonic()) - self.started, 1e-9)
+
+    @property
+    def fps(self) -> float:
+        """Frames processed per second over the run."""
+        return self.frames_processed / self.elapsed_s
+
+    @property
+    def recent_fps(self) -> float:
+        """Frames processed per second over the last (up to) 64 frames."""
+        if len(self.recent) < 2:
+            return 0.0
+        return (len(self.recent) - 1) / max(self.recent[-1] - self.recent[0], 1e-9)
+
+    def latency(self, q: float) -> float:
+        return float(np.percentile(self.latencies_ms, q)) if self.latencies_ms else math.nan
+
+    def summary(self) -> dict:
+        lat = self.latencies_ms
+        return {
+            "elapsed_s": round(self.elapsed_s, 3),
+            "frames_captured": self.frames_captured,
+            "frames_processed": self.frames_processed,
+            "frames_dropped": self.frames_dropped,
+            "frames_unchanged": self.frames_unchanged,
+            "frames_merged": self.frames_merged,
+            "frames_empty": self.frames_empty,
+            "fps": round(self.fps, 2),
+            "latency_ms": {"n": len(lat), **{f"p{q}": round(self.latency(q), 3)
+                                            for q in (50, 95, 99)},
+                           "max": round(max(lat), 3) if lat else None},
+            "process_ms": {"p50": round(float(np.median(self.process_ms)), 3)
+                           if self.process_ms else None,
+                           "p95": round(float(np.percentile(self.process_ms, 95)), 3)
+                           if self.process_ms else None},
+            "safety_deadlines": {
+                "n": len(self.deadline_late_ms),
+                "late_p99_ms": round(float(np.percentile(self.deadline_late_ms, 99)), 3)
+                if self.deadline_late_ms else None,
+                "late_max_ms": round(max(self.deadline_late_ms), 3)
+                if self.deadline_late_ms else None},
+            "outputs_sent": self.outputs_sent,
+            "changes_sent": self.changes_sent,
+            "reconnects": self.reconnects,
+            "degradations": dict(self.degradations),
+            "end": self.end_reason,
+        }
+
+
+@dataclass
+class Snapshot:
+    """The newest state of the run, for the preview."""
+
+    frame: Frame | None
+    encoded: Encoded | None
+    applied: dict[Actuator, Drive]
+    stats: LiveStats
+    notes: list[str]
+
+
+@dataclass
+class _Pending:
+    """A change not yet felt: the first frame that showed it, and the cycle that was
+    playing before (what would have played without it)."""
+
+    frame: int
+    t_capture: float
+    old: Program | None
+    old_epoch: float | None
+
+
+class LiveRun:
+    """A live run (module docstring). ``sinks`` are called with each event the run
+    records: ``("frame", dict)`` per frame processed, ``("program", dict)`` per new
+    cycle, ``("output", dict)`` per frame of outputs sent (the recorder is one)."""
+
+    def __init__(self, source: FrameSource, encoder: LiveEncoder, device: DeviceBase, *,
+                 duration_s: float | None = None, stall_s: float = 2.0,
+                 should_stop: Callable[[], bool | str | None] | None = None,
+                 sinks: list[Callable[[str, dict], None]] | None = None,
+                 on_snapshot: Callable[[Snapshot], None] | None = None,
+                 reconnect: bool = True):
+        self.source = source
+        self.encoder = encoder
+        self.device = device
+        self.duration_s = duration_s
+        self.stall_s = stall_s
+        self.should_stop = should_stop
+        self.sinks = list(sinks or [])
+        self.on_snapshot = on_snapshot
+        self.reconnect = reconnect
+        self.stats = LiveStats()
+        self.clock = ClockMap()
+        self.mailbox = LatestFrame()
+        self._stop = threading.Event()
+        self.program: Program | None = None
+        self.epoch: float | None = None
+        self.last_frame: Frame | None = None
+        self.last_encoded: Encoded | None = None
+        self._applied: dict[Actuator, Drive] = {}
+
+    def stop(self, reason: str = "stopped") -> None:
+        """Ask the run to end (from another thread: the preview, a signal handler)."""
+        if not self.stats.end_reason:
+            self.stats.end_reason = reason
+        self._stop.set()
+        self.mailbox.notify()
+
+    # -- the loop ---------------------------------------------------------------------------
+    def run(self) -> LiveStats:
+        st = self.stats
+        dev = self.device
+        self.source.open()
+        try:
+            dev.open()
+        except BaseException:
+            self.source.close()
+            raise
+        capture = Capture(self.source, self.mailbox)
+        st.started = time.monotonic()
+        capture.start()
+        last_desired: dict[Actuator, Drive] | None = None
+        pending: _Pending | None = None
+        deadline_at: float | None = None
+        failures = 0
+        last_frame_at = st.started
+        end_at = st.started + self.duration_s if self.duration_s else math.inf
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(0.0005)       # the loop wakes on time while others compute
+        try:
+            while True:
+                now = time.monotonic()
+                if self._stop.is_set():
+                    break
+                if self.should_stop is not None:
+                    why = self.should_stop()
+                    if why:
+                        self.stop(why if isinstance(why, str) else "stopped")
+                        break
+                if now >= end_at:
+                    self.stop(f"{self.duration_s:g} s elapsed")
+                    break
+                try:
+                    frame = self.mailbox.take()
+                except SourceEnded:
+                    self.stop(f"end of {self.source.label}")
+                    break
+                if frame is not None:
+                    last_frame_at = now
+                    pending = self._process(frame, pending, now)
+                elif now - last_frame_at > self.stall_s:
+                    raise InputError(f"{self.source.label} stopped delivering frames (none for "
+                                     f"{self.stall_s:g} s)", key="SOURCE")
+                now = time.monotonic()
+                prog = self.program
+                desired = prog.state_at(prog.phase(now, self.epoch)) if prog else {}
+                deadline = dev.stream_deadline_s()
+                due = deadline is not None and deadline <= 0
+                if due and deadline_at is not None:
+                    st.deadline_late_ms.append((now - deadline_at) * 1000.0)
+                try:
+                    if desired != last_desired or due:
+                        rep = dev.stream(desired)
+                        last_desired = desired
+                        pending = self._sent(rep, desired, pending, now)
+                    else:
+                        dev.stream_alive()
+                    failures = 0
+                except DeviceError as e:
+                    # A stalled loop lets the device's watchdog end the session (every
+                    # actuator off); open it again and go on, unless that keeps failing.
+                    failures += 1
+                    if failures > 3 or self.reconnect is False:
+                        raise
+                    self._reconnect(e)
+                    last_desired = None
+                    continue
+                # Sleep until something happens.
+                now = time.monotonic()
+                waits = [end_at - now, self.stall_s - (now - last_frame_at) + 0.001,
+                         dev.stream_checkin_ms / 2000.0]
+                if prog is not None:
+                    waits.append(prog.ms_to_next_change(prog.phase(now, self.epoch)) / 1000.0
+                                 + 0.0002)
+                deadline = dev.stream_deadline_s()
+                deadline_at = None if deadline is None else now + deadline
+                if deadline is not None:
+                    waits.append(deadline)
+                self.mailbox.wait(max(0.0, min(waits)))
+        except KeyboardInterrupt:
+            self.stop("interrupted (Ctrl-C)")
+            raise
+        except SessionAborted as e:
+            self.stop(str(e) or "aborted")
+            raise
+        except BaseException as e:
+            self.stop(f"error: {e}")
+            raise
+        finally:
+            sys.setswitchinterval(switch)
+            try:
+                t_off = time.monotonic()
+                dev.all_off()
+                self._emit("output", {
+                    "t_host": t_off, "t_device_ms": None, "t_onset_host": None, "frame": None,
+                    "changed": len(self._applied), "on": 0, "applied": {}, "degradations": [],
+                    "latency_ms": None, "latency_frame": None})
+                self._applied = {}
+            finally:
+                st.ended = time.monotonic()
+                capture.stop()
+                st.frames_captured = self.mailbox.captured
+                st.frames_dropped = self.mailbox.dropped
+                self._emit("end", st.summary())
+                self._snapshot({})
+        return st
+
+    def _reconnect(self, error: DeviceError) -> None:
+        st = self.stats
+        st.reconnects += 1
+        st.last_notes = [f"device: {error}"[:160], "reconnected: every actuator was off"]
+        st.last_notes_at = time.monotonic()
+        self._emit("output", {
+            "t_host": time.monotonic(), "t_device_ms": None, "t_onset_host": None,
+            "frame": None, "changed": len(self._applied), "on": 0, "applied": {},
+            "degradations": [], "latency_ms": None, "latency_frame": None})
+        self._applied = {}
+        try:
+            self.device.close()
+        except Exception:
+            pass                    # it is off: by its watchdog, or it is gone
+        try:
+            self.device.open()
+        except Exception:
+            raise error from None
+
+    def _process(self, frame: Frame, pending: _Pending | None, now: float) -> _Pending | None:
+        st = self.stats
+        enc = self.encoder.process(frame.image, frame=frame.index, t_capture=frame.t_capture)
+        st.frames_processed += 1
+        st.frames_captured = self.mailbox.captured
+        st.frames_dropped = self.mailbox.dropped
+        st.recent.append(time.monotonic())
+        st.process_ms.append(enc.encode_ms + enc.code_ms)
+        self.last_frame, self.last_encoded = frame, enc
+        new = enc.program
+        old = self.program
+        changed = (new is None) != (old is None) or (
+            new is not None and old is not None and new.signature != old.signature)
+        if new is None:
+            st.frames_empty += 1
+        if changed:
+            if pending is not None:
+                st.frames_merged += 1
+            else:
+                pending = _Pending(frame.index, frame.t_capture, old, self.epoch)
+            self.epoch = carried_epoch(now, old, self.epoch, new) if new is not None else None
+            self.program = new
+            if new is not None:
+                self._emit("program", {"frame": frame.index, "cycle_ms": new.cycle_ms,
+                                       "pattern": new.pattern, "schedule": new.schedule})
+        else:
+            st.frames_unchanged += 1
+        c = _centroid(new)
+        self._emit("frame", {
+            "frame": frame.index, "t_capture": frame.t_capture, "t_processed": time.monotonic(),
+            "process_ms": enc.encode_ms + enc.code_ms, "encode_ms": enc.encode_ms,
+            "dropped_so_far": self.mailbox.dropped, "points": len(enc.pattern.points),
+            "centroid_row": c[0], "centroid_col": c[1],
+            "cycle_ms": new.cycle_ms if new is not None else None,
+            "program": "new" if changed and new is not None else
+                       ("none" if new is None else "same"),
+            "snake_init": enc.pattern.params.get("snake_init"), "name": frame.name})
+        self._snapshot(self.device._stream_state)
+        return pending
+
+    def _sent(self, rep: StreamReport, desired: dict[Actuator, Drive],
+              pending: _Pending | None, now: float) -> _Pending | None:
+        st = self.stats
+        st.outputs_sent += 1
+        st.changes_sent += rep.changed
+        onset_host = None
+        if rep.t_device_ms is not None:
+            self.clock.add(rep.host_before_ms, rep.host_after_ms, rep.t_device_ms)
+            onset_host = self.clock.to_host_ms(rep.t_device_ms)
+        for d in rep.degradations:
+            st.degradations[d.kind] += 1
+        if rep.degradations:
+            st.last_notes = [d.text for d in rep.degradations]
+            st.last_notes_at = now
+        latency = None
+        resolved = None
+        prev, self._applied = self._applied, rep.applied
+        if pending is not None and rep.changed and onset_host is not None:
+            old = pending.old
+            before = old.state_at(old.phase(now, pending.old_epoch)) if old is not None else {}
+            # Felt: an output that the change asks to differ was changed, to what it asks.
+            felt = any(desired.get(k) != before.get(k) and prev.get(k) != rep.applied.get(k)
+                       and rep.applied.get(k) == desired.get(k)
+                       for k in desired.keys() | before.keys())
+            if felt:
+                latency = onset_host - pending.t_capture * 1000.0
+                st.latencies_ms.append(latency)
+                resolved = pending.frame
+                pending = None
+        self._emit("output", {
+            "t_host": rep.host_before_ms / 1000.0, "t_device_ms": rep.t_device_ms,
+            "t_onset_host": None if onset_host is None else onset_host / 1000.0,
+            "frame": self.program.frame if self.program is not None else None,
+            "changed": rep.changed, "on": len(rep.applied), "applied": rep.applied,
+            "degradations": rep.degradations, "latency_ms": latency, "latency_frame": resolved})
+        self._snapshot(rep.applied)
+        return pending
+
+    def _emit(self, kind: str, event: dict) -> None:
+        for sink in self.sinks:
+            sink(kind, event)
+
+    def _snapshot(self, applied: dict[Actuator, Drive]) -> None:
+        if self.on_snapshot is not None:
+            st = self.stats
+            notes = st.last_notes if time.monotonic() - st.last_notes_at < 2.0 else []
+            self.on_snapshot(Snapshot(self.last_frame, self.last_encoded, dict(applied), st,
+                                      list(notes)))
+
+
+def _centroid(program: Program | None) -> tuple[float | None, float | None]:
+    if program is None or not program.pattern.points:
+        return (None, None)
+    pts = np.array(program.actuated, dtype=np.float64)
+    return (float(pts[:, 0].mean()), float(pts[:, 1].mean()))
