@@ -274,6 +274,67 @@ def test_a_host_starved_of_the_cpu_is_no_pulled_cable(emu):
     assert out.strip() == "played 6"
     assert emu.firmware.counters.watchdog_trips == 0
 
+
+STALL_HOST = """
+import json, sys, time
+from vtexp.devices import open_device
+from vtexp.errors import DeviceError
+from vtexp.model import DeviceProfile, Schedule, Pulse
+p = DeviceProfile.load('vest_6x8')
+d = open_device(sys.argv[1], p)
+d.open()
+one = Schedule(device='vest_6x8', pulses=[Pulse(row=0, col=0, onset_ms=0, duration_ms=int(sys.argv[2]), level=2)])
+d.play(one)
+print('stop me', flush=True)
+time.sleep(1.0)                      # stopped (SIGSTOP) in here, by the test
+try:
+    d.play(one)
+    print(json.dumps({'played': True, **d.link_stats()}), flush=True)
+except DeviceError as e:
+    print(json.dumps({'played': False, 'error': str(e), **d.link_stats()}), flush=True)
+d.close()
+"""
+
+
+def stalled_host(emu, spec: str, duration_ms: int, stop_after_s: float) -> dict:
+    import json
+    proc = subprocess.Popen([sys.executable, "-c", STALL_HOST, spec, str(duration_ms)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    try:
+        assert proc.stdout.readline().strip() == "stop me"
+        time.sleep(stop_after_s)
+        os.kill(proc.pid, signal.SIGSTOP)
+        time.sleep(0.5)
+        os.kill(proc.pid, signal.SIGCONT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def test_a_session_the_watchdog_ended_between_plays_is_started_again(emu):
+    """The host stopped 500 ms while idle, longer than its 200 ms watchdog: the device
+    turned everything off (it was off) and ended the session; the next play says HELLO
+    again and plays, counted."""
+    got = stalled_host(emu, f"serial:{emu.port}", 50, 0.1)
+    assert got["played"] is True and got["sessions_renewed"] == 1
+    assert emu.firmware.counters.watchdog_trips == 1
+    assert sum(1 for a in emu.actuations() if not a.setting.is_off) == 2   # both plays, once
+
+
+def test_a_play_the_watchdog_cut_short_says_why(emu):
+    """Stopped 500 ms in the middle of a 1 s pulse: the device switched it off after its
+    200 ms watchdog; the play fails with what happened and what to change."""
+    got = stalled_host(emu, f"serial:{emu.port}", 1000, 1.3)
+    assert got["played"] is False
+    assert "turned every actuator off: its watchdog heard nothing from this computer for " \
+        "200 ms" in got["error"]
+    assert f"serial:{emu.port},watchdog_ms=1000" in got["error"]
+    assert emu.actuations()[-1].cause == "watchdog"
+
 # --------------------------------------------------------------------------- handshake
 
 def test_device_of_another_geometry_is_refused_at_handshake():

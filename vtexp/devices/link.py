@@ -36,6 +36,9 @@ from .wire import Message, Nak, NakReason
 # 0.2 + 0.6 + 0.05 of a period.
 SILENCE_FRACTION = 0.6
 HEARTBEAT_FRACTION = 0.2
+# A pass of the reader's loop takes at most the port's read timeout (10 ms) plus a
+# frame's decoding; a pass longer than this means the process was not running.
+STARVED_S = 0.05
 CHECK_FRACTION = 0.05
 
 
@@ -66,6 +69,7 @@ class LinkStats:
     stale_replies: int = 0      # replies to a request no longer in flight (answered twice)
     device_frames_lost: int = 0  # gaps in the device's sequence numbers
     heartbeats: int = 0
+    starved: int = 0            # passes of the reader after the process was not running
     last_rtt_ms: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
@@ -274,6 +278,7 @@ class Link:
 
     # -- reader -----------------------------------------------------------------------------
     def _read_loop(self) -> None:
+        ran = time.monotonic()
         while not self._closing.is_set():
             try:
                 n = self.port.in_waiting
@@ -286,6 +291,14 @@ class Link:
                 self.stats.rx_bytes += len(data)
                 for item in self._reader.feed(data):
                     self._dispatch(item)
+            now = time.monotonic()
+            if now - ran > STARVED_S and self.unanswered_since is not None:
+                # This thread was not run for a while (the computer was busy): neither,
+                # perhaps, was a device in this process or the program feeding the pty.
+                # Silence is counted afresh from now rather than from before the gap.
+                self.stats.starved += 1
+                self.unanswered_since = now
+            ran = now
             limit = self.silence_limit_s
             since = self.unanswered_since
             if limit is not None and self.lost is None and since is not None:

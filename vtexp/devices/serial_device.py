@@ -154,6 +154,7 @@ class _PlayState:
     n: int
     onsets: list[int | None] = field(default_factory=list)
     done: PlayDone | None = None
+    triggered: bool = False         # the device acknowledged the TRIGGER: it played
 
 
 class SerialDevice(DeviceBase):
@@ -205,8 +206,12 @@ class SerialDevice(DeviceBase):
         self._play_id = 0
         self._lost_reported = False
         self.alarms: list[wire.Alarm] = []
-        # Recoveries above the link: onsets asked for again, PLAY_DONE replaced by STATUS.
-        self.recovered = {"onsets_fetched": 0, "status_polls": 0}
+        # Set when the device's watchdog ended the session (ALARM, or NAK NO_SESSION):
+        # this computer sent nothing for watchdog_ms, and the device turned everything off.
+        self._session_ended: str | None = None
+        # Recoveries above the link: onsets asked for again, PLAY_DONE replaced by STATUS,
+        # sessions started again after the device's watchdog ended one between plays.
+        self.recovered = {"onsets_fetched": 0, "status_polls": 0, "sessions_renewed": 0}
         self._drive = wire.DRIVE_KINDS[profile.drive.kind]
         self._off = wire.OFF[self._drive]
         self._outputs: list[Setting] = [self._off] * (profile.rows * profile.cols)
@@ -216,6 +221,7 @@ class SerialDevice(DeviceBase):
         import serial  # pyserial; imported here so that 'vtexp --help' stays fast
 
         self._lost_reported = False
+        self._session_ended = None
         try:
             # exclusive: two programs driving one array would interleave their frames
             port = serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=0.01,
@@ -337,14 +343,51 @@ class SerialDevice(DeviceBase):
             f"it with 'vtexp device check', then resume the session.")
 
     def _call(self, fn: Callable[[Link], Any]) -> Any:
-        """Run ``fn(link)``, turning a lost link into a message for people."""
+        """Run ``fn(link)``, turning a lost link into a message for people.
+
+        If the device's watchdog ended the session while nothing was playing (this
+        computer was too busy to send a heartbeat for ``watchdog_ms``; the device turned
+        everything off, which it was anyway), the session is started again with a new
+        handshake, counted in ``recovered["sessions_renewed"]``, and ``fn`` runs on it.
+        During a stream the outputs the host believes on are off: that is an error.
+        """
         link = self._link
         if link is None:
             raise DeviceError(f"the device on {self.port} is not open")
         try:
-            return fn(link)
+            if self._session_ended is not None:
+                self._renew_session(link)
+            try:
+                return fn(link)
+            except DeviceRefused as e:
+                st = self._current
+                if e.nak.reason != NakReason.NO_SESSION or (st is not None and st.triggered):
+                    raise                   # never play a schedule twice
+                self._current = None
+                self._session_ended = "NO_SESSION"
+                self._renew_session(link)
+                return fn(link)
         except DeviceLost:
             raise self._lost(link.lost or "the link was lost") from None
+
+    def _watchdog_message(self) -> str:
+        wd = self.hello.watchdog_ms if self.hello else self.watchdog_ms
+        return (f"the device on {self.port} turned every actuator off: its watchdog heard "
+                f"nothing from this computer for {wd} ms (the program stalled, or the "
+                f"computer was too busy). A longer watchdog tolerates that: --device "
+                f"serial:{self.port},watchdog_ms={max(1000, 2 * wd)}")
+
+    def _renew_session(self, link: Link) -> None:
+        """A new session after the device's watchdog ended the last one."""
+        if self._streaming:
+            self._session_ended = None
+            raise DeviceError(self._watchdog_message())
+        hello = self._handshake(link)
+        self._check_against_profile(hello)
+        self.hello = hello
+        self._outputs = [self._off] * (self.profile.rows * self.profile.cols)
+        self._session_ended = None
+        self.recovered["sessions_renewed"] += 1
 
     # -- events (reader thread) -------------------------------------------------------------
     def _on_event(self, msg: Message) -> None:
@@ -357,6 +400,8 @@ class SerialDevice(DeviceBase):
             st.done = msg
         elif isinstance(msg, wire.Alarm):
             self.alarms.append(msg)
+            if msg.code == wire.AlarmCode.WATCHDOG:
+                self._session_ended = "ALARM WATCHDOG"
         if link is not None:
             with link._cond:
                 link._cond.notify_all()
@@ -389,13 +434,20 @@ class SerialDevice(DeviceBase):
             for k in range(0, len(wp), per):
                 link.expect(UploadChunk(pid, k, self._drive, tuple(wp[k:k + per])), Ack)
         except DeviceRefused as e:
+            if e.nak.reason == NakReason.NO_SESSION:
+                raise                       # the watchdog ended the session: _call renews it
             raise DeviceError(self._refusal(e.nak, pulses, wp, k)) from None
         st = _PlayState(pid, len(wp), [None] * len(wp))
         self._current = st
         self._check_stop()                  # stopped during the upload: nothing is played
         start_us = link.expect(Trigger(pid, 0), Ack).t_us
+        st.triggered = True
         self._wait_done(link, st, schedule.duration_ms)
         if st.done is not None and st.done.reason != DoneReason.FINISHED:
+            self._current = None
+            if st.done.reason == DoneReason.WATCHDOG:
+                raise DeviceError(f"{self._watchdog_message()}; the play stopped after "
+                                  f"{st.done.n_onsets} of {len(wp)} onsets")
             raise DeviceError(f"the device on {self.port} stopped the play early "
                               f"({DoneReason.NAMES.get(st.done.reason, st.done.reason)}) "
                               f"after {st.done.n_onsets} of {len(wp)} onsets")
@@ -554,8 +606,10 @@ class SerialDevice(DeviceBase):
                     applied = ack.t_us if applied is None else applied
                 for i, s in changes:
                     state[i] = s
-                if first_t_us is None:
-                    first_t_us = applied - round(t_ms * 1000)
+                # The play's start on the device clock: the instant that came least late
+                # says it best (each is sent at its time or later, never earlier)
+                implied = applied - round(t_ms * 1000)
+                first_t_us = implied if first_t_us is None else min(first_t_us, implied)
                 for i in starting:
                     onsets[i] = applied
         finally:
@@ -588,6 +642,9 @@ class SerialDevice(DeviceBase):
         # A loop that stalled may find the session ended: say so at once.
         if self._link is not None and self._link.lost is not None:
             raise self._lost(self._link.lost)
+        if self._session_ended is not None:
+            self._session_ended = None
+            raise DeviceError(self._watchdog_message())
 
     def _set_outputs(self, changes, *, full: bool = False) -> float:
         # Offsets first: a device that applies a frame's changes one after another (or a
