@@ -346,6 +346,9 @@ class LiveRun:
             self.device.open()
         except Exception:
             raise error from None
+        # a device opened again may have restarted its clock (an emulator is started
+        # anew; a board resets when its port opens): map it afresh
+        self.clock = ClockMap()
 
     def _process(self, frame: Frame, pending: _Pending | None, now: float) -> _Pending | None:
         st = self.stats
