@@ -593,7 +593,7 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
             f"but the device given is {run_info['device_spec']} ({info.backend}): the "
             f"participant would {_what_they_feel(info.backend)}. Resume on a {device_kind(recorded)} "
             f"device (--device {_device_hint(recorded)}), or add --force-device to continue "
-            f"on {run_info['device_spec']} anyway.", key="--device")
+            f"on {run_info['device_spec']} anyway.")
     was_kind = record.get("participant_kind")
     if was_kind and was_kind != run_info["participant_kind"] and \
             "model" in (was_kind, run_info["participant_kind"]):
