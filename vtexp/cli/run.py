@@ -290,7 +290,7 @@ def register(sub) -> None:
                         "window (the participant's PsychoPy window, fullscreen on screen 0; "
                         "options after a colon, comma-separated: windowed, fullscreen, "
                         "screen=N, size=WxH, abort=KEY (default escape), scale=S (text S "
-                        "times larger, 1-3), audio (every text spoken, answers by keys), "
+                        "times larger, 1-2.5), audio (every text spoken, answers by keys), "
                         "lang=LANG (espeak-ng's), noise=on|off (masking noise during each "
                         "stimulus), e.g. window:windowed,size=1024x768 or "
                         "window:audio,lang=de; needs the 'gui' extra). Required, except "
