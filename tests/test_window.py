@@ -103,8 +103,9 @@ class Participant:
         assert self.polls < 5000, f"the script is stuck at {self.steps[:1]} on {r.screen}"
         if not self.seen or self.seen[-1] != r.screen:
             self.seen.append(r.screen)
-        name = r.screen if r.screen != "choice" or r.buttons[-1].value != "again" or \
-            r.buttons[-1].enabled else "choice_no_replays_left"
+        again = next((b for b in r.buttons if b.value == "again"), None)
+        name = r.screen if r.screen != "choice" or again is None or again.enabled \
+            else "choice_no_replays_left"
         if self.shots and not (self.shots / f"{name}.png").exists():
             r.capture(self.shots / f"{name}.png")
         if self.pressed:                    # release the button for a frame
@@ -423,7 +424,7 @@ def test_instruction_pages_and_the_break_screen(monkeypatch):
 def test_rating_scale_with_the_papers_labels(monkeypatch):
     r = responder()
     Participant([("rating", "key", "5"),                  # not on the scale: ignored
-                 ("rating", "key", "3"), ("rating", "click", 4)]).install(monkeypatch, r)
+                 ("rating", "key", "3"), ("rating", "click", "4")]).install(monkeypatch, r)
     labels = {0: "no whirlpool felt", 4: "a clear whirlpool"}
     first = r.ask_rating("How clearly did you feel a whirlpool?", range(0, 5), labels)
     second = r.ask_rating("How clearly did you feel a whirlpool?", range(0, 5), labels)
@@ -431,14 +432,16 @@ def test_rating_scale_with_the_papers_labels(monkeypatch):
     r.close()
 
 
-def test_rating_from_minus_two_to_plus_two_uses_position_keys(monkeypatch, tmp_path):
+def test_rating_from_minus_two_to_plus_two_takes_the_number_pressed(monkeypatch, tmp_path):
+    """The key is the number said and shown: 1 is +1, minus then 1 is -1 (not the first
+    button from the left, as before issue 13)."""
     r = responder()
-    Participant([("rating", "key", "1"), ("rating", "click", 2)],
-                shots=tmp_path).install(monkeypatch, r)
+    Participant([("rating", "key", "1"), ("rating", "key", "minus"), ("rating", "key", "1"),
+                 ("rating", "key", "num_subtract"), ("rating", "key", "num_2"),
+                 ("rating", "click", "2")], shots=tmp_path).install(monkeypatch, r)
     labels = {-2: "surely a circle", 2: "surely a rectangle"}
-    a = r.ask_rating("Circle or rectangle?", range(-2, 3), labels)
-    b = r.ask_rating("Circle or rectangle?", range(-2, 3), labels)
-    assert (a.answer, b.answer) == ("-2", "2")
+    got = [r.ask_rating("Circle or rectangle?", range(-2, 3), labels).answer for _ in range(4)]
+    assert got == ["1", "-1", "-2", "2"]
     shutil.copy(tmp_path / "rating.png", SCREENS / "rating_pm2.png")
     r.close()
 
@@ -542,7 +545,7 @@ def test_every_screen_type_was_saved_and_none_is_blank():
 def test_the_schemas_rating_and_number_questions_reach_their_screens(monkeypatch):
     from vtexp.experiment import NumberQuestion, RatingQuestion
     r = responder()
-    Participant([("rating", "key", "1"), ("number", "key", "7"),
+    Participant([("rating", "key", "minus"), ("rating", "key", "2"), ("number", "key", "7"),
                  ("number", "key", "return")]).install(monkeypatch, r)
     rating = RatingQuestion(kind="rating", prompt="Circle or rectangle?", low=-2, high=2,
                             labels={-2: "rectangle", 2: "circle"})

@@ -322,7 +322,8 @@ class Speech:
             text, path = self.queue.pop(0)
             self.audio.play(path)
             start = time.monotonic()
-            self.current = (text, path, start, start + wav_duration_s(path))
+            length = getattr(self.audio, "duration", wav_duration_s)(path)
+            self.current = (text, path, start, start + length)
 
     def busy(self) -> bool:
         self.update()

@@ -879,11 +879,7 @@ class WindowResponder:
         self._draw()
         self.win.flip()
         got = []
-        if not collect:
-            if self._event.getKeys(keyList=[self.options.abort_key]) and abort:
-                self.close()
-                raise SessionAborted(f"the {self.options.abort_key} key was pressed in the "
-                                     "participant window")
+        if not collect:         # keys wait for the next screen (the abort key aborts there)
             return got
         for key, t in self._event.getKeys(timeStamped=self.clock):
             if abort and key == self.options.abort_key:
@@ -954,15 +950,21 @@ def _choice(r: WindowResponder, q, replay, trial=None):
 
 
 def _rating(r: WindowResponder, q, replay, trial=None):     # vtexp.experiment.RatingQuestion
+    from types import SimpleNamespace
+    scale = list(q.scale)
+    q = SimpleNamespace(kind="rating", name=getattr(q, "name", "rating"), prompt=q.prompt,
+                        scale=scale, low=min(scale), high=max(scale),
+                        labels=dict(getattr(q, "labels", {}) or {}),
+                        options=[str(v) for v in scale], replays=getattr(q, "replays", 0))
     return r._ask(q, replay, trial)
 
 
 def _number(r: WindowResponder, q, replay, trial=None):     # vtexp.experiment.NumberQuestion
     from types import SimpleNamespace
-    if not hasattr(q, "options") or not hasattr(q, "replays"):
-        q = SimpleNamespace(kind="number", name=getattr(q, "name", "count"), prompt=q.prompt,
-                            minimum=getattr(q, "minimum", 0), maximum=getattr(q, "maximum", 99),
-                            replays=getattr(q, "replays", 0), options=[])
+    lo, hi = getattr(q, "minimum", 0), getattr(q, "maximum", 99)
+    q = SimpleNamespace(kind="number", name=getattr(q, "name", "count"), prompt=q.prompt,
+                        minimum=lo, maximum=hi, replays=getattr(q, "replays", 0),
+                        options=[str(v) for v in range(lo, min(hi, lo + 200) + 1)])
     return r._ask(q, replay, trial)
 
 
