@@ -29,11 +29,13 @@ $(VENV)/.test: $(VENV)/.core
 # root (CI), what is missing is installed; elsewhere the command to run is printed.
 GUI_DEBS := xvfb libgl1-mesa-dri libglu1-mesa libxxf86vm1 libxinerama1 libxi6 libxrandr2 \
             libxcursor1 fontconfig fonts-dejavu-core
+# The audio mode speaks with espeak-ng and plays through PsychoPy's sound (PortAudio).
+AUDIO_DEBS := espeak-ng libportaudio2
 
 system-packages:
 	@command -v dpkg-query >/dev/null || { command -v Xvfb >/dev/null || \
-	  echo "the window tests need Xvfb and Mesa OpenGL; install them with your package manager" >&2; exit 0; }; \
-	missing=$$(for p in $(GUI_DEBS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null \
+	  echo "the window tests need Xvfb, Mesa OpenGL and espeak-ng; install them with your package manager" >&2; exit 0; }; \
+	missing=$$(for p in $(GUI_DEBS) $(AUDIO_DEBS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null \
 	  | grep -q 'install ok installed' || echo $$p; done | tr '\n' ' '); \
 	if [ -z "$$missing" ]; then exit 0; fi; \
 	if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \

@@ -300,8 +300,8 @@ class Speech:
         self.noise_on: list[tuple[float, float]] = []     # (start, stop) of masking noise
         self._noise_since: float | None = None
 
-    def phrase(self, key: str, **values) -> str:
-        return self.book[key].format(**values)
+    def phrase(self, name: str, /, **values) -> str:
+        return self.book[name].format(**values)
 
     def say(self, *texts: str, interrupt: bool = True) -> None:
         """Speak ``texts`` in turn; by default what was being said stops first."""

@@ -261,6 +261,7 @@ class WindowResponder:
         self._stims: dict[tuple, object] = {}
         self._practice_seen = False
         self._paused = False
+        self.entered: list[str] = []          # every screen shown, in order
         pres = getattr(getattr(lx, "experiment", None), "presentation", None)
         o = self.options
         self.scale = o.scale if o.scale is not None else (pres.scale if pres else 1.0)
@@ -864,6 +865,7 @@ class WindowResponder:
         self._draw = draw
         if not entering:
             return
+        self.entered.append(name)
         key = self.options.abort_key
         if self._event.getKeys(keyList=[key]):
             self.close()
