@@ -171,15 +171,19 @@ def _session(study, audio, display, tmp_path):
                 return
             kb.focus(r.win)
             time.sleep(0.2)
+            wait_for(lambda: r.speech is None or not r.speech.busy())   # heard it all
             kb.press("space")
             for n, trial_keys in enumerate(keys, start=1):
-                qi = 0
+                qi, asked = 0, -1
                 for k in trial_keys:
                     q = questions[qi]
-                    if not wait_for(lambda q=q, n=n: r.entered.count("ready") >= n
-                                    and r.screen == q.kind and speaking(q.prompt)):
-                        problems.append(f"question {q.name} never asked (on {r.screen})")
-                        return
+                    if asked != qi:      # a question's first key: once it has been heard
+                        if not wait_for(lambda q=q, n=n: r.entered.count("ready") >= n
+                                        and r.screen == q.kind and speaking(q.prompt)):
+                            problems.append(f"question {q.name} never asked (on {r.screen})")
+                            return
+                        wait_for(lambda: r.speech is None or not r.speech.busy())
+                        asked = qi
                     time.sleep(0.05)
                     before = r.layout
                     kb.press(k)
@@ -188,7 +192,8 @@ def _session(study, audio, display, tmp_path):
                         # The answer is taken: the screen shows it (and says it) and moves on.
                         wait_for(lambda: r.layout is not before)
                     time.sleep(0.05)
-            if not wait_for(lambda: r.screen == "end"):
+            if not wait_for(lambda: r.screen == "end" and (r.speech is None or not
+                                                           r.speech.busy())):
                 problems.append(f"no end screen (on {r.screen})")
                 return
             time.sleep(0.1)

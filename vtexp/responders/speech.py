@@ -183,9 +183,10 @@ class Voice:
         path = self.path_of(text)
         if not path.is_file():
             tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.wav")
+            # The text goes in on standard input: one starting with '-' is no option.
             r = subprocess.run([espeak(), "-v", self.language, "-s", str(self.rate_wpm),
-                                "-w", str(tmp), text], capture_output=True, text=True,
-                               timeout=60)
+                                "-w", str(tmp), "--stdin"], input=text, capture_output=True,
+                               text=True, timeout=60)
             if r.returncode != 0 or not tmp.is_file():
                 raise SessionError(f"espeak-ng could not speak {text[:60]!r}: "
                                    f"{r.stderr.strip() or r.returncode}")

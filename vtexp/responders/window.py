@@ -392,7 +392,7 @@ class WindowResponder:
             how = [sp.phrase("rating", low=q.low, high=q.high)]
             if ak.signed:
                 how.append(sp.phrase("rating_negative"))
-            how += [sp.phrase("rating_point", value=v, label=q.labels[v])
+            how += [sp.phrase("rating_point", value=self.spoken_number(v), label=q.labels[v])
                     for v in q.scale if v in q.labels]
         elif ak.letters:
             how = [sp.phrase("choose_letter_key")]
@@ -401,7 +401,13 @@ class WindowResponder:
                             for o in q.options)]
         return [q.prompt, *how]
 
+    def spoken_number(self, v: int) -> str:
+        """-2 as "minus 2", in the phrase book's word: what the participant presses."""
+        return f"{self.speech.phrase('minus')} {abs(v)}" if v < 0 else str(v)
+
     def spoken_answer(self, q, answer: str) -> str:
+        if q.kind in ("rating", "number") and answer.lstrip("-").isdigit():
+            return self.spoken_number(int(answer))
         return shown(answer)
 
     def _say(self, *texts: str, wait: bool = False) -> None:
@@ -810,10 +816,11 @@ class WindowResponder:
         self._message_screen(name, text, hint)
         if self.speech is not None and spoken:
             self._say(*spoken)
+            if not listen_while_speaking:       # the end: said in full before it closes
+                while self.speech.busy():
+                    self._frame(abort=abort, collect=False)
         while True:
             for key, _, _button in self._frame(abort=abort, click_anywhere=True):
-                if not listen_while_speaking and self.speech is not None and self.speech.busy():
-                    continue
                 if key == REPEAT_KEY and self.speech is not None:
                     self._say(*spoken)
                     continue
