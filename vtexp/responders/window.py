@@ -589,7 +589,7 @@ class WindowResponder:
                 cell.value = value
                 screen.cells.append(cell)
             bottom += ctl_h + 0.01
-        status = status or (f"Taken: {answered}" if answered is not None else "")
+        status = status or (f"Taken: {shown(str(answered))}" if answered is not None else "")
         text = status
         if not text:
             hint = self._hint(q)
@@ -803,8 +803,7 @@ class WindowResponder:
 
     def _confirm(self, q, answer: str, show) -> None:
         """The answer is shown taken (its button filled) and said back, before moving on."""
-        shown_answer = shown(answer) if q.kind == "choice" else answer
-        show(answered=shown_answer)
+        show(answered=answer)
         if self.speech is not None:
             self._say(self.speech.phrase("answer_taken", answer=self.spoken_answer(q, answer)))
         until = self._core.getTime() + CONFIRM_S
@@ -860,9 +859,7 @@ class WindowResponder:
 
         def draw():
             for b in self.buttons:
-                self._button(b, chosen=chosen is not None and
-                             b.cell.label.text.split("\n")[0] in (str(chosen),
-                                                                   rating_label(chosen)))
+                self._button(b, chosen=chosen is not None and str(b.value) == str(chosen))
             for lb in screen.labels:
                 self._label(lb)
             if cross:
