@@ -43,35 +43,15 @@ STUDIES = ["duration_interval_grid", "letters", "six_mode_ball", "whirlpool",
 
 
 @pytest.fixture(scope="module", autouse=True)
-def display(tmp_path_factory):
-    """A virtual X server large enough for a 1920x1080 window, and a speech cache."""
-    exe = shutil.which("Xvfb")
-    if exe is None:
-        pytest.fail("Xvfb is not installed (make test installs it)")
-    n = next(n for n in range(200, 300) if not Path(f"/tmp/.X{n}-lock").exists()
-             and not Path(f"/tmp/.X11-unix/X{n}").exists())
-    proc = subprocess.Popen([exe, f":{n}", "-screen", "0", "1920x1200x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 20
-    while not Path(f"/tmp/.X11-unix/X{n}").exists():
-        assert proc.poll() is None and time.monotonic() < deadline, "Xvfb did not start"
-        time.sleep(0.05)
-    old = {k: os.environ.get(k) for k in ("DISPLAY", "VTEXP_SPEECH_CACHE")}
-    os.environ["DISPLAY"] = f":{n}"
+def display(xvfb, tmp_path_factory):
+    """The virtual X server of conftest.py (1920x1200), and a speech cache."""
+    old = os.environ.get("VTEXP_SPEECH_CACHE")
     os.environ["VTEXP_SPEECH_CACHE"] = str(tmp_path_factory.mktemp("speech"))
-    yield f":{n}"
-    if "psychopy.visual" in __import__("sys").modules:
-        from psychopy.visual.window import openWindows
-        for ref in list(openWindows):
-            if ref() is not None:
-                ref().close()
-    proc.terminate()
-    proc.wait(10)
-    for k, v in old.items():
-        if v is None:
-            os.environ.pop(k, None)
-        else:
-            os.environ[k] = v
+    yield xvfb
+    if old is None:
+        os.environ.pop("VTEXP_SPEECH_CACHE", None)
+    else:
+        os.environ["VTEXP_SPEECH_CACHE"] = old
 
 
 class CapturedAudio:
