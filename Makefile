@@ -29,14 +29,16 @@ $(VENV)/.test: $(VENV)/.core
 # root (CI), what is missing is installed; elsewhere the command to run is printed.
 GUI_DEBS := xvfb libgl1-mesa-dri libglu1-mesa libxxf86vm1 libxinerama1 libxi6 libxrandr2 \
             libxcursor1 fontconfig fonts-dejavu-core
+# The audio mode speaks with espeak-ng and plays through PsychoPy's sound (PortAudio).
+AUDIO_DEBS := espeak-ng libportaudio2
 # The reference firmware (firmware/): avr-gcc and avr-libc build what a lab flashes; the
 # tests run that .elf on an emulated ATmega2560 (libsimavr, through vtexp-simavr).
 FIRMWARE_DEBS := gcc-avr avr-libc binutils-avr libsimavr-dev libelf-dev pkg-config make gcc
-SYSTEM_DEBS := $(GUI_DEBS) $(FIRMWARE_DEBS)
+SYSTEM_DEBS := $(GUI_DEBS) $(AUDIO_DEBS) $(FIRMWARE_DEBS)
 
 system-packages:
 	@command -v dpkg-query >/dev/null || { command -v Xvfb >/dev/null || \
-	  echo "the window tests need Xvfb and Mesa OpenGL, the firmware tests avr-gcc and simavr; install them with your package manager" >&2; exit 0; }; \
+	  echo "the window tests need Xvfb, Mesa OpenGL and espeak-ng, the firmware tests avr-gcc and simavr; install them with your package manager" >&2; exit 0; }; \
 	missing=$$(for p in $(SYSTEM_DEBS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null \
 	  | grep -q 'install ok installed' || echo $$p; done | tr '\n' ' '); \
 	if [ -z "$$missing" ]; then exit 0; fi; \

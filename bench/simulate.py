@@ -45,8 +45,8 @@ def sessions_per_participant(k: int = 6) -> float:
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
         for i in range(k):
-            run_session(lx, f"b{i}", 1, SimDevice(model.profile),
-                        ModelObserver(model, f"b{i}", seed=0), d, conditions=conds)
+            run_session(lx, f"sim{i}", 1, SimDevice(model.profile),
+                        ModelObserver(model, f"sim{i}", seed=0), d, conditions=conds)
         load_sessions([d])
         return (time.perf_counter() - t0) / k
 

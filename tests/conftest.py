@@ -5,6 +5,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import shutil
+import time
+
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,3 +66,38 @@ question:
 @pytest.fixture
 def minimal_yaml() -> str:
     return MINIMAL
+
+
+@pytest.fixture(scope="session")
+def xvfb():
+    """A virtual X server on a free display number, for the whole test session (one for
+    every window test: pyglet stays connected to the first display it opens)."""
+    exe = shutil.which("Xvfb")
+    if exe is None:
+        pytest.fail("Xvfb is not installed: apt-get install xvfb libgl1-mesa-dri "
+                    "(make test installs them)")
+    n = next(n for n in range(90, 200)
+             if not Path(f"/tmp/.X{n}-lock").exists()
+             and not Path(f"/tmp/.X11-unix/X{n}").exists())
+    proc = subprocess.Popen([exe, f":{n}", "-screen", "0", "1920x1200x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 20
+    while not Path(f"/tmp/.X11-unix/X{n}").exists():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail(f"Xvfb :{n} did not start: {proc.stderr.read().decode()[-500:]}")
+        time.sleep(0.05)
+    old = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = f":{n}"
+    yield f":{n}"
+    if "psychopy.visual" in sys.modules:      # a failed test may leave its window open
+        from psychopy.visual.window import openWindows
+        for ref in list(openWindows):
+            if ref() is not None:
+                ref().close()
+    proc.terminate()
+    proc.wait(10)
+    if old is None:
+        os.environ.pop("DISPLAY", None)
+    else:
+        os.environ["DISPLAY"] = old

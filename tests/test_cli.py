@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import json
+import os
+import shlex
+import subprocess
+import sys
 from pathlib import Path
 
 import pandas as pd
 
-from conftest import GRID
+from conftest import GRID, ROOT
 
 
 def test_plan_prints_the_trial_list(cli):
@@ -82,7 +86,7 @@ def test_demo_runs_the_four_studies_with_model_participants(cli, tmp_path):
     assert "effect of display: F(" in r.stdout and "effect of shape: F(" in r.stdout
     assert "vtexp simulate" in r.stdout
     # The same seed gives the same answers: a second demo replaces the first, identically.
-    first = (next(root.glob("whirlpool/sub-m01/ses-1/*_beh.tsv"))).read_text()
+    first = (next(root.glob("whirlpool/sub-sim01/ses-1/*_beh.tsv"))).read_text()
     # The study's reanalysis script reproduces the paper's Table 1 layout from the data.
     import subprocess
     import sys
@@ -96,7 +100,7 @@ def test_demo_runs_the_four_studies_with_model_participants(cli, tmp_path):
     assert len(table) == 8 and table.to_numpy().min() >= 0 and table.to_numpy().max() <= 1
     assert cli("demo", "--data", str(root), "--participants", "2",
                timeout=300).returncode == 0
-    again = (next(root.glob("whirlpool/sub-m01/ses-1/*_beh.tsv"))).read_text()
+    again = (next(root.glob("whirlpool/sub-sim01/ses-1/*_beh.tsv"))).read_text()
     drop_time = [ln.rsplit("\t", 1)[0] for ln in first.splitlines()]
     assert drop_time == [ln.rsplit("\t", 1)[0] for ln in again.splitlines()]
     other = tmp_path / "precious"
@@ -274,23 +278,26 @@ def test_run_asks_the_experimenter_at_a_terminal(tmp_path, minimal_yaml):
     r = _at_a_terminal(run + ["--max-trials", "1"], "a/b\n07\n\n")
     assert r.returncode == 0, r.stderr
     assert "Participant id: " in r.stdout and "'a/b' is not a plain token" in r.stdout
-    assert "Participant 07 has no sessions yet" in r.stdout and "Session [1]: " in r.stdout
+    assert "Participant 07 has no sessions yet" in r.stdout and "New session [1]: " in r.stdout
     assert "session aborted: 1 trials logged" in r.stdout
     assert "stopped after 1 trial as asked (--max-trials 1)" in r.stdout
-    # The sessions that exist are shown; the unfinished one is pointed to --resume; a
-    # session that exists is refused at the prompt; the next free number is the default.
-    r = _at_a_terminal(run, "07\n1\n\n")
+    # The sessions that exist are shown and the unfinished one is offered first; declined,
+    # a session that exists is refused at the prompt; the next free number is the default.
+    r = _at_a_terminal(run, "07\nn\n1\n\n")
     assert r.returncode == 0, r.stderr
     assert "Sessions of participant 07 already in" in r.stdout
     assert "ses-1  aborted, 1 of 4 trials" in r.stdout
-    assert (f"Session 1 did not finish. To continue it, stop here (Ctrl-C) and run 'vtexp run "
-            f"{f} --participant 07 --session 1 --resume'.") in r.stdout
-    assert "Session [2]: " in r.stdout and "session 1 already exists (aborted" in r.stdout
+    assert "Session 1 did not finish (aborted, 1 of 4 trials). Continue it? [Y/n] " in r.stdout
+    assert "New session [2]: " in r.stdout and "session 1 already exists (aborted" in r.stdout
     assert "session completed: 4 trials logged" in r.stdout and "sub-07/ses-2" in r.stdout
-    # With --resume the default is the unfinished session.
-    r = _at_a_terminal(run + ["--resume"], "07\n\n")
+    # Offered again, Enter continues the unfinished session where it stopped.
+    r = _at_a_terminal(run, "07\n\n")
     assert r.returncode == 0, r.stderr
-    assert "Session to resume [1]: " in r.stdout and "session completed: 3 trials" in r.stdout
+    assert "Continue it? [Y/n] " in r.stdout and "New session" not in r.stdout
+    assert "session completed: 3 trials" in r.stdout and "sub-07/ses-1" in r.stdout
+    # With --resume and nothing unfinished, it says so.
+    r = _at_a_terminal(run + ["--resume"], "07\n")
+    assert r.returncode == 2 and "no unfinished session" in r.stderr
     # A participant id given on the command line is not asked again; session 1 exists.
     r = _at_a_terminal(run + ["-p", "07"], "")
     assert r.returncode == 2 and "Participant id" not in r.stdout
@@ -348,8 +355,10 @@ def test_max_trials_stops_and_the_session_resumes(cli, tmp_path, minimal_yaml):
     r = cli(*run, "--max-trials", "3")
     assert r.returncode == 0, r.stderr
     assert "session aborted: 3 trials logged" in r.stdout
-    assert (f"stopped after 3 trials as asked (--max-trials 3); to continue: vtexp run {f} "
-            "--participant 01 --session 1 --resume") in r.stdout
+    printed = r.stdout.split("to continue: ", 1)[1].strip()
+    assert printed == (f"{sys.executable} -m vtexp run {f} --participant 01 --session 1 "
+                       f"--device sim --responder scripted:correct --data {tmp_path / 'd'} "
+                       "--resume")
     meta_path = next((tmp_path / "d").rglob("session.json"))
     meta = json.loads(meta_path.read_text())
     assert meta["status"] == "aborted" and meta["n_trials_logged"] == 3
@@ -357,7 +366,11 @@ def test_max_trials_stops_and_the_session_resumes(cli, tmp_path, minimal_yaml):
     r = cli("analyze", str(tmp_path / "d"), "--out", str(tmp_path / "out"))
     assert r.returncode == 0, r.stderr
     assert "session aborted (stopped after 3 trials as asked)" in r.stderr
-    r = cli(*run, "--resume", "--max-trials", "5")      # more than are left: it completes
+    # The command printed works as printed, from another folder (more trials than are
+    # left: it completes).
+    r = subprocess.run(shlex.split(printed) + ["--quiet", "--max-trials", "5"], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)))
     assert r.returncode == 0, r.stderr
     assert "session completed: 1 trials logged" in r.stdout
     meta = json.loads(meta_path.read_text())
@@ -404,7 +417,7 @@ def _plays(actuations) -> dict[int, list[tuple[int, int]]]:
 
 
 def test_run_with_a_model_participant(cli, tmp_path):
-    args = ["run", "experiments/circle_vs_rectangle.yaml", "-p", "m1", "--responder",
+    args = ["run", "experiments/circle_vs_rectangle.yaml", "-p", "sim1", "--responder",
             "model:seed=4", "--data", str(tmp_path), "--quiet"]
     r = cli(*args)
     assert r.returncode == 0, r.stderr

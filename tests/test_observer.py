@@ -103,14 +103,14 @@ def test_a_session_with_the_model_observer_logs_what_the_simulator_predicts(tmp_
     lx = load_experiment(path)
     model = ObserverModel.for_experiment(lx)
     conditions = compile_conditions(lx, model.profile)
-    res = run_session(lx, "m1", 1, SimDevice(model.profile),
-                      ModelObserver(model, "m1", 1, seed=5), tmp_path, conditions=conditions,
+    res = run_session(lx, "sim1", 1, SimDevice(model.profile),
+                      ModelObserver(model, "sim1", 1, seed=5), tmp_path, conditions=conditions,
                       max_trials=40)
     with open(res.paths.beh_tsv, encoding="utf-8") as f:
         logged = [(int(r["trial"]), r["question"], r["answer"])
                   for r in csv.DictReader(f, delimiter="\t") if r["practice"] == "0"]
     predicted = [(r["trial"], r["question"], r["answer"])
-                 for r in simulate_participant(setup, 5, "m1")]
+                 for r in simulate_participant(setup, 5, "sim1")]
     assert logged and logged == predicted[:len(logged)]
 
 

@@ -37,38 +37,10 @@ from vtexp.session import run_session                   # noqa: E402
 SCREENS = ROOT / "test-output" / "screens"
 
 
-@pytest.fixture(scope="session", autouse=True)
-def xvfb():
-    """A virtual X server on a free display number, for the whole test session."""
-    exe = shutil.which("Xvfb")
-    if exe is None:
-        pytest.fail("Xvfb is not installed: apt-get install xvfb libgl1-mesa-dri "
-                    "(make test installs them)")
-    n = next(n for n in range(90, 200)
-             if not Path(f"/tmp/.X{n}-lock").exists()
-             and not Path(f"/tmp/.X11-unix/X{n}").exists())
-    proc = subprocess.Popen([exe, f":{n}", "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 20
-    while not Path(f"/tmp/.X11-unix/X{n}").exists():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            proc.kill()
-            pytest.fail(f"Xvfb :{n} did not start: {proc.stderr.read().decode()[-500:]}")
-        time.sleep(0.05)
-    old = os.environ.get("DISPLAY")
-    os.environ["DISPLAY"] = f":{n}"
-    yield f":{n}"
-    if "psychopy.visual" in sys.modules:      # a failed test may leave its window open
-        from psychopy.visual.window import openWindows
-        for ref in list(openWindows):
-            if ref() is not None:
-                ref().close()
-    proc.terminate()
-    proc.wait(10)
-    if old is None:
-        os.environ.pop("DISPLAY", None)
-    else:
-        os.environ["DISPLAY"] = old
+@pytest.fixture(scope="module", autouse=True)
+def _display(xvfb):
+    """The virtual X server of conftest.py, for every test here."""
+    return xvfb
 
 
 class Participant:
@@ -103,8 +75,9 @@ class Participant:
         assert self.polls < 5000, f"the script is stuck at {self.steps[:1]} on {r.screen}"
         if not self.seen or self.seen[-1] != r.screen:
             self.seen.append(r.screen)
-        name = r.screen if r.screen != "choice" or r.buttons[-1].value != "again" or \
-            r.buttons[-1].enabled else "choice_no_replays_left"
+        again = next((b for b in r.buttons if b.value == "again"), None)
+        name = r.screen if r.screen != "choice" or again is None or again.enabled \
+            else "choice_no_replays_left"
         if self.shots and not (self.shots / f"{name}.png").exists():
             r.capture(self.shots / f"{name}.png")
         if self.pressed:                    # release the button for a frame
@@ -423,7 +396,7 @@ def test_instruction_pages_and_the_break_screen(monkeypatch):
 def test_rating_scale_with_the_papers_labels(monkeypatch):
     r = responder()
     Participant([("rating", "key", "5"),                  # not on the scale: ignored
-                 ("rating", "key", "3"), ("rating", "click", 4)]).install(monkeypatch, r)
+                 ("rating", "key", "3"), ("rating", "click", "4")]).install(monkeypatch, r)
     labels = {0: "no whirlpool felt", 4: "a clear whirlpool"}
     first = r.ask_rating("How clearly did you feel a whirlpool?", range(0, 5), labels)
     second = r.ask_rating("How clearly did you feel a whirlpool?", range(0, 5), labels)
@@ -431,14 +404,16 @@ def test_rating_scale_with_the_papers_labels(monkeypatch):
     r.close()
 
 
-def test_rating_from_minus_two_to_plus_two_uses_position_keys(monkeypatch, tmp_path):
+def test_rating_from_minus_two_to_plus_two_takes_the_number_pressed(monkeypatch, tmp_path):
+    """The key is the number said and shown: 1 is +1, minus then 1 is -1 (not the first
+    button from the left, as before issue 13)."""
     r = responder()
-    Participant([("rating", "key", "1"), ("rating", "click", 2)],
-                shots=tmp_path).install(monkeypatch, r)
+    Participant([("rating", "key", "1"), ("rating", "key", "minus"), ("rating", "key", "1"),
+                 ("rating", "key", "num_subtract"), ("rating", "key", "num_2"),
+                 ("rating", "click", "2")], shots=tmp_path).install(monkeypatch, r)
     labels = {-2: "surely a circle", 2: "surely a rectangle"}
-    a = r.ask_rating("Circle or rectangle?", range(-2, 3), labels)
-    b = r.ask_rating("Circle or rectangle?", range(-2, 3), labels)
-    assert (a.answer, b.answer) == ("-2", "2")
+    got = [r.ask_rating("Circle or rectangle?", range(-2, 3), labels).answer for _ in range(4)]
+    assert got == ["1", "-1", "-2", "2"]
     shutil.copy(tmp_path / "rating.png", SCREENS / "rating_pm2.png")
     r.close()
 
@@ -542,7 +517,7 @@ def test_every_screen_type_was_saved_and_none_is_blank():
 def test_the_schemas_rating_and_number_questions_reach_their_screens(monkeypatch):
     from vtexp.experiment import NumberQuestion, RatingQuestion
     r = responder()
-    Participant([("rating", "key", "1"), ("number", "key", "7"),
+    Participant([("rating", "key", "minus"), ("rating", "key", "2"), ("number", "key", "7"),
                  ("number", "key", "return")]).install(monkeypatch, r)
     rating = RatingQuestion(kind="rating", prompt="Circle or rectangle?", low=-2, high=2,
                             labels={-2: "rectangle", 2: "circle"})

@@ -411,6 +411,28 @@ class NumberQuestion(Model):
         return [str(v) for v in range(self.minimum, self.maximum + 1)]
 
 
+class PresentationSpec(Model):
+    """How the participant is told and asked (the participant window, ``--responder
+    window``); ``--responder window:audio,scale=2,lang=de,noise=off`` overrides it."""
+
+    audio: bool = Field(
+        False, description="speak every instruction, question, option, confirmation and "
+                           "break (espeak-ng), for participants who cannot see the screen; "
+                           "answers by keys that match what is heard")
+    language: Annotated[str, Field(pattern=r"^[A-Za-z]{2,3}([-_][A-Za-z0-9]{1,8})*$")] = Field(
+        "en", description="espeak-ng's language of the spoken clips (espeak-ng --voices)")
+    scale: Annotated[float, Field(ge=1.0, le=2.5)] = Field(
+        1.0, description="every text at least scale x 3 % of the screen height (checked to "
+                         "fit the screen before the first trial)")
+    masking_noise: bool = Field(
+        True, description="with audio: a rushing noise in the headphones while each stimulus "
+                          "plays, so that the device's sound gives nothing away (seed 001)")
+    phrases: dict[str, str] = Field(
+        default_factory=dict, description="the spoken phrases to replace (see "
+                                          "vtexp/responders/speech.py PHRASES), e.g. for a "
+                                          "language vtexp has no phrase book for")
+
+
 QUESTION_KINDS = ("choice", "rating", "number")
 
 
@@ -449,6 +471,8 @@ class Experiment(Model):
         None, description="the analyses of the report (vtexp/analysis/spec.py)")
     observer: ObserverSpec | None = Field(
         None, description="how a model participant answers (vtexp simulate, vtexp/observer)")
+    presentation: PresentationSpec | None = Field(
+        None, description="how the participant is told and asked: spoken (audio), text size")
 
     @model_validator(mode="after")
     def _one_question_key(self) -> Self:

@@ -10,8 +10,14 @@ One folder per session, following the BIDS behavioural convention::
 
 ``session.json`` is written with status ``running`` before the first trial and
 rewritten at the end with the status (``completed``, ``aborted``, ``failed``),
-the end time and the SHA-256 of each file. A session folder is created
-exclusively: a run never overwrites an existing session.
+the end time and the SHA-256 of each file; a session whose process died is
+marked ``interrupted`` by the next run that finds it (:func:`mark_dead_sessions`).
+
+A new session is made whole in a hidden staging folder (``.ses-N.staging-PID``)
+and renamed into place, so a run killed while starting leaves either no session
+or a complete one. While a session runs, its ``session.lock`` is held
+(:mod:`vtexp.lock`): a second run of the same session is refused, naming the
+process that holds it. A session folder is never overwritten.
 
 An experiment with camera stimuli (``camera: N``, ``video: FILE``) also keeps the
 frame taken at each such trial in ``stim/`` (and a live trial's record), named in the
@@ -21,8 +27,10 @@ trial log's ``stim_file`` column (``vtexp.live.trial``).
 from __future__ import annotations
 
 import json
+import os
 import platform
 import re
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -37,12 +45,17 @@ from .design import Trial, trial_list
 from .devices.base import DeviceBase
 from .errors import DeviceError, InputError, SessionAborted, SessionError
 from .experiment import LoadedExperiment
-from .log import TsvLog, sha256_file, write_json_atomic
+from .lock import LOCK_NAME, SessionBusy, SessionLock
+from .log import TsvLog, fsync_dir, sha256_file, write_json_atomic
 from .model import DeviceProfile, PlayReport, TrialRecord
 from .responders.base import Responder, call_hook, correct_answer
 
 PARTICIPANT = re.compile(r"^[A-Za-z0-9]{1,64}$")
 FORMAT_VERSION = 1
+
+#: Participant ids that start with this (any case) belong to model participants only,
+#: so that a simulated session can never be taken for a person's.
+SIMULATED_PREFIX = "sim"
 
 
 def now_iso() -> str:
@@ -55,6 +68,25 @@ def check_participant(participant: str) -> str:
         raise InputError(f"participant id {participant!r} is not a plain token; use 1-64 "
                          "letters and digits (e.g. 01, P07, anna)", key="--participant")
     return participant
+
+
+def participant_kind(responder: object) -> str:
+    """Who answers: ``person`` (window, console), ``model`` (a model participant) or
+    ``scripted`` (answers from a rule or a file)."""
+    return str(getattr(responder, "participant_kind", "person"))
+
+
+def check_participant_kind(participant: str, kind: str) -> None:
+    """Model participants and people never share an id: ``sim...`` is the models'."""
+    simulated_id = participant.lower().startswith(SIMULATED_PREFIX)
+    if kind == "model" and not simulated_id:
+        raise InputError(f"a model participant's id starts with '{SIMULATED_PREFIX}' (e.g. "
+                         f"{SIMULATED_PREFIX}{participant}), so that its sessions are never "
+                         f"taken for a person's; got {participant!r}", key="--participant")
+    if kind == "person" and simulated_id:
+        raise InputError(f"ids starting with '{SIMULATED_PREFIX}' are kept for model "
+                         f"participants; give this person another id (got {participant!r})",
+                         key="--participant")
 
 
 def check_session(session: int) -> int:
@@ -82,8 +114,83 @@ def list_sessions(data, experiment: str, participant: str) -> list[dict]:
         found.append({"session": int(m[1]), "status": meta.get("status") or "unreadable",
                       "logged": meta.get("n_trials_logged"),
                       "planned": meta.get("n_trials_planned"),
-                      "started": meta.get("started_at") or "", "reason": meta.get("reason")})
+                      "started": meta.get("started_at") or "", "reason": meta.get("reason"),
+                      "device": meta.get("device_spec") or (meta.get("device") or {}).get(
+                          "backend"),
+                      "responder": meta.get("responder_spec"),
+                      "held_by": SessionLock.probe(d) if (d / LOCK_NAME).exists() else None})
     return sorted(found, key=lambda x: x["session"])
+
+
+def mark_dead_sessions(data, experiment: str) -> list[dict]:
+    """Sessions of ``experiment`` that say ``running`` but whose process has died (no one
+    holds their lock) are marked ``interrupted``; staging folders left by a run killed
+    while starting (no trial was played) are removed. Returns what was marked: dicts with
+    ``participant``, ``session``, ``logged``, ``planned``, ``dir``, ``reason``."""
+    marked = []
+    root = Path(data) / experiment
+    if not root.is_dir():
+        return marked
+    for staging in root.glob("sub-*/.ses-*.staging-*"):
+        try:
+            lock = SessionLock.acquire(staging)
+        except SessionError:
+            continue                        # still being made by a live run
+        lock.release()
+        shutil.rmtree(staging, ignore_errors=True)
+    for sj in sorted(root.glob("sub-*/ses-*/session.json")):
+        d = sj.parent
+        try:
+            meta = json.loads(sj.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if not isinstance(meta, dict) or meta.get("status") != "running":
+            continue
+        try:
+            lock = SessionLock.acquire(d)
+        except SessionBusy:
+            continue                        # really running, in another process
+        except SessionError:
+            continue
+        try:
+            meta = json.loads(sj.read_text(encoding="utf-8"))    # read again, under the lock
+            if meta.get("status") != "running":
+                continue
+            who = lock.stale or meta.get("process") or {}
+            reason = ("the vtexp process that ran it"
+                      + (f" (pid {who['pid']} on {who.get('host', '?')})" if who.get("pid") else "")
+                      + " ended without closing it: killed, crashed or the power failed; "
+                      f"found at {now_iso()[:19].replace('T', ' ')}")
+            meta.update(status="interrupted", reason=reason)
+            write_json_atomic(sj, meta)
+            marked.append({"participant": meta.get("participant"), "session": meta.get("session"),
+                           "logged": meta.get("n_trials_logged"),
+                           "planned": meta.get("n_trials_planned"), "dir": d, "reason": reason})
+        finally:
+            lock.release()
+    return marked
+
+
+def recorded_run(paths_dir: Path | str) -> dict:
+    """How a session was run, from its session.json: ``device`` (the --device spec, or the
+    backend for sessions recorded before specs were), ``responder`` (the --responder spec,
+    or None), ``data`` (the data folder), ``participant_kind``. Empty if unreadable."""
+    try:
+        meta = json.loads((Path(paths_dir) / "session.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(meta, dict):
+        return {}
+    return {"device": meta.get("device_spec") or (meta.get("device") or {}).get("backend"),
+            "device_info": meta.get("device") or {},
+            "responder": meta.get("responder_spec"),
+            "data": meta.get("data_dir"), "participant_kind": meta.get("participant_kind"),
+            "status": meta.get("status")}
+
+
+def device_kind(spec_or_backend: str | None) -> str:
+    """``serial:/dev/ttyACM0`` -> ``serial``; ``sim:realtime`` -> ``sim``."""
+    return (spec_or_backend or "").partition(":")[0]
 
 
 @dataclass(frozen=True)
@@ -223,14 +330,23 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                 sinks: tuple[TrialSink, ...] = (), command: list[str] | None = None,
                 on_device_error: DeviceFaultHandler | None = None,
                 resume: bool = False, max_trials: int | None = None,
+                device_spec: str | None = None, responder_spec: str | None = None,
+                force_device: bool = False,
                 capture_prompt: Callable[[str], None] | None = None) -> SessionResult:
     """Run one session and log it. Raises SessionError if the session already exists.
 
     ``resume=True`` continues a session that did not finish (killed, crashed,
     aborted): the same trial list is rebuilt from the same seed, the trials the
     log already holds are skipped, and the next trial is the first one missing.
-    A row cut off mid-write is removed first. The experiment file must be the
-    one the session started with (same SHA-256).
+    A row cut off mid-write is removed first, and a file missing or cut short
+    (a session left by a run killed while starting) is rebuilt from what
+    exists. The experiment file must be the one the session started with (same
+    SHA-256), and the device of the same kind as the one recorded (``sim``,
+    ``serial``, ``emulator``) unless ``force_device``: a session begun on a real
+    array is not continued on the simulator by mistake.
+
+    The session is locked while it runs (``session.lock``): a second run of it,
+    from another terminal, is refused with the process that holds it.
 
     When the device fails during a trial (cable pulled, power lost), every
     actuator is already off (the device's watchdog, ``DeviceBase``'s all-off)
@@ -238,11 +354,15 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     ``"retry"`` (reopen the device and play the trial again), ``"skip"`` (log
     the trial with status ``device_error`` and go on) or ``"abort"`` (end the
     session, status ``failed``, the error re-raised). Without a handler the
-    session aborts.
+    session aborts. The responder's ``device_paused``/``device_resumed`` hooks
+    show the participant a pause screen meanwhile.
 
     ``max_trials=N`` stops after N trials of this run (counted from where a
     resumed session continues): the session ends with status ``aborted`` and
     the reason "stopped after N trials as asked", so that it can be resumed.
+
+    ``device_spec`` and ``responder_spec`` (the ``--device`` and ``--responder``
+    given) are recorded so that a resume can use them again.
 
     ``capture_prompt(text)`` asks the experimenter to place a camera stimulus's object
     and returns when it is in place (``vtexp.live.trial``); camera stimuli without
@@ -251,6 +371,8 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     exp = lx.experiment
     check_participant(participant)
     check_session(session)
+    kind = participant_kind(responder)
+    check_participant_kind(participant, kind)
     profile: DeviceProfile = device.profile
     if profile.name != exp.device:
         raise InputError(f"the experiment is declared for device {exp.device!r}, but the "
@@ -259,54 +381,33 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     trials, seed = trial_list(exp, conditions, participant, session)
     paths = SessionPaths.of(data_dir, exp.name, exp.task_label, participant, session)
     camera = _CameraTrials.of(lx, paths.dir, capture_prompt)
+    who = f"session {session} of participant {participant}"
+    run_info = {"device_spec": device_spec or getattr(device, "backend", None) or "sim",
+                "responder_spec": responder_spec, "participant_kind": kind,
+                "data_dir": str(Path(data_dir).resolve()), "process": None}
 
     factors = list(exp.factors)
     if resume:
-        if not paths.session_json.is_file():
-            raise SessionError(f"there is no session {session} of participant {participant} in "
-                               f"{paths.dir} to resume")
-        info = device.open()
-        record, beh, events, done = _reopen(paths, lx, trials, seed, factors, info,
-                                            camera is not None)
-    else:
+        if not paths.dir.is_dir():
+            raise SessionError(f"there is no {who} in {paths.dir.parent} to resume"
+                               + (" (a run was stopped while creating it, before any trial; "
+                                  "start it without --resume)"
+                                  if list(paths.dir.parent.glob(f".{paths.dir.name}.staging-*"))
+                                  else ""))
+        lock = SessionLock.acquire(paths.dir, what=who)
         try:
-            paths.dir.parent.mkdir(parents=True, exist_ok=True)
-            paths.dir.mkdir()
-        except FileExistsError:
-            raise SessionError(f"session {session} of participant {participant} already exists "
-                               f"in {paths.dir}; nothing was overwritten. Use --resume to "
-                               "continue it, or another --session number.") from None
-        except OSError as e:
-            raise SessionError(f"cannot create the session folder {paths.dir}: "
-                               f"{e.strerror}") from None
-        info = device.open()
-        record = {
-            "format": "vtexp-session", "format_version": FORMAT_VERSION,
-            "experiment": exp.name, "task": exp.task_label, "participant": participant,
-            "session": session, "status": "running", "started_at": now_iso(), "ended_at": None,
-            "seed": seed, "seed_source": "design.seed" if exp.design.seed is not None
-            else "derived from (experiment, participant, session)",
-            "n_trials_planned": len(trials),
-            "trial_order": [t.condition.index for t in trials],
-            "conditions": [{"index": c.index, "levels": c.levels, "stimulus": c.stimulus,
-                            "encoding": c.encoding_params, "coding": c.coding_params}
-                           for c in conditions],
-            "experiment_file": {"path": str(lx.path), "sha256": lx.sha256,
-                                "text": lx.source.text},
-            "experiment_loaded": exp.model_dump(mode="json"),
-            "device": info.model_dump(mode="json"),
-            "device_profile": profile.model_dump(mode="json"),
-            "responder": getattr(responder, "description", type(responder).__name__),
-            "command": command or sys.argv,
-            "environment": environment(),
-            "files": {"beh": paths.beh_tsv.name, "sidecar": paths.beh_json.name,
-                      "events": paths.events_tsv.name},
-            "checksums": None, "n_trials_logged": 0, "reason": None, "resumes": [],
-        }
-        write_json_atomic(paths.session_json, record)
-        write_json_atomic(paths.beh_json, sidecar(lx))
-        beh = TsvLog(paths.beh_tsv, trial_columns(factors, camera is not None))
-        events = TsvLog(paths.events_tsv, EVENT_COLUMNS)
+            info = device.open()
+            record, beh, events, done = _reopen(paths, lx, participant, session, trials, seed,
+                                                factors, info, conditions, device, responder,
+                                                command, run_info, force_device,
+                                                camera is not None)
+        except BaseException:
+            lock.release()
+            raise
+    else:
+        lock, record, beh, events = _create(paths, lx, participant, session, trials, seed,
+                                            conditions, device, responder, command, run_info,
+                                            who, camera is not None)
         done = 0
     result = SessionResult(paths, "running", seed=seed)
     status, reason = "failed", None
@@ -354,15 +455,111 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
         try:
             device.all_off()
         finally:
-            beh.close()
-            events.close()
-            record.update(status=status, reason=reason, ended_at=now_iso(),
-                          n_trials_logged=done + len({r.trial for r in result.records}),
-                          checksums={f.name: sha256_file(f) for f in
-                                     (paths.beh_tsv, paths.beh_json, paths.events_tsv)})
-            write_json_atomic(paths.session_json, record)
-            result.status = status
+            try:
+                beh.close()
+                events.close()
+                record.update(status=status, reason=reason, ended_at=now_iso(),
+                              n_trials_logged=done + len({r.trial for r in result.records}),
+                              checksums={f.name: sha256_file(f) for f in
+                                         (paths.beh_tsv, paths.beh_json, paths.events_tsv)})
+                write_json_atomic(paths.session_json, record)
+                result.status = status
+            finally:
+                lock.release()
     return result
+
+
+def _new_record(lx: LoadedExperiment, participant: str, session: int, trials: list[Trial],
+                seed: int, conditions: list[Condition], info, profile: DeviceProfile,
+                responder, command, run_info: dict, paths: SessionPaths) -> dict:
+    exp = lx.experiment
+    return {
+        "format": "vtexp-session", "format_version": FORMAT_VERSION,
+        "experiment": exp.name, "task": exp.task_label, "participant": participant,
+        "session": session, "status": "running", "started_at": now_iso(), "ended_at": None,
+        "seed": seed, "seed_source": "design.seed" if exp.design.seed is not None
+        else "derived from (experiment, participant, session)",
+        "n_trials_planned": len(trials),
+        "trial_order": [t.condition.index for t in trials],
+        "conditions": [{"index": c.index, "levels": c.levels, "stimulus": c.stimulus,
+                        "encoding": c.encoding_params, "coding": c.coding_params}
+                       for c in conditions],
+        "experiment_file": {"path": str(Path(lx.path).resolve()), "sha256": lx.sha256,
+                            "text": lx.source.text},
+        "experiment_loaded": exp.model_dump(mode="json"),
+        "device": info.model_dump(mode="json"),
+        "device_profile": profile.model_dump(mode="json"),
+        "responder": getattr(responder, "description", type(responder).__name__),
+        **run_info,
+        "process": _process(),
+        "command": command or sys.argv,
+        "environment": environment(),
+        "files": {"beh": paths.beh_tsv.name, "sidecar": paths.beh_json.name,
+                  "events": paths.events_tsv.name},
+        "checksums": None, "n_trials_logged": 0, "reason": None, "resumes": [],
+    }
+
+
+def _process() -> dict:
+    return {"pid": os.getpid(), "host": platform.node()}
+
+
+def _create(paths: SessionPaths, lx, participant, session, trials, seed, conditions, device,
+            responder, command, run_info, who, camera: bool = False
+            ) -> tuple[SessionLock, dict, TsvLog, TsvLog]:
+    """Make a new session whole in a staging folder, then rename it into place.
+
+    A run killed while this runs leaves a hidden staging folder and no session: the
+    next run removes it (:func:`mark_dead_sessions`) and the session starts afresh.
+    """
+    if paths.dir.exists():
+        _refuse_existing(paths, who)
+    staging = paths.dir.with_name(f".{paths.dir.name}.staging-{os.getpid()}")
+    try:
+        paths.dir.parent.mkdir(parents=True, exist_ok=True)
+        shutil.rmtree(staging, ignore_errors=True)
+        staging.mkdir()
+    except OSError as e:
+        raise SessionError(f"cannot create the session folder {paths.dir}: "
+                           f"{e.strerror}") from None
+    lock = None
+    try:
+        lock = SessionLock.acquire(staging, what=who)
+        info = device.open()
+        staged = SessionPaths(staging, paths.prefix)
+        record = _new_record(lx, participant, session, trials, seed, conditions, info,
+                             device.profile, responder, command, run_info, paths)
+        write_json_atomic(staged.beh_json, sidecar(lx))
+        TsvLog(staged.beh_tsv, trial_columns(list(lx.experiment.factors), camera)).close()
+        TsvLog(staged.events_tsv, EVENT_COLUMNS).close()
+        write_json_atomic(staged.session_json, record)
+        try:
+            os.rename(staging, paths.dir)          # atomic: all of the session, or none
+        except OSError:
+            if paths.dir.exists():
+                _refuse_existing(paths, who)
+            raise
+        lock.move_to(paths.dir)
+        fsync_dir(paths.dir.parent)
+        beh, _, _ = TsvLog.reopen(paths.beh_tsv, trial_columns(list(lx.experiment.factors),
+                                                               camera))
+        events, _, _ = TsvLog.reopen(paths.events_tsv, EVENT_COLUMNS)
+        return lock, record, beh, events
+    except BaseException:
+        if lock is not None:
+            lock.release()
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
+def _refuse_existing(paths: SessionPaths, who: str):
+    holder = SessionLock.probe(paths.dir)
+    if holder is not None:
+        from .lock import describe_holder
+        raise SessionBusy(f"{who} is running now in another vtexp process "
+                          f"({describe_holder(holder)}); nothing was touched.", holder)
+    raise SessionError(f"{who} already exists in {paths.dir}; nothing was overwritten. "
+                       "Use --resume to continue it, or another --session number.")
 
 
 def _maybe_break(exp, trial: Trial, trials: list[Trial], responder: Responder) -> None:
@@ -377,15 +574,28 @@ def _maybe_break(exp, trial: Trial, trials: list[Trial], responder: Responder) -
                                       "Continue when you are ready.")
 
 
-def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed: int,
-            factors: list[str], info, camera: bool = False) -> tuple[dict, TsvLog, TsvLog, int]:
-    """Check that a session can be resumed and reopen its logs; return how many trials it holds."""
-    import json
+def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session: int,
+            trials: list[Trial], seed: int,
+            factors: list[str], info, conditions, device, responder, command, run_info: dict,
+            force_device: bool, camera: bool = False
+            ) -> tuple[dict, TsvLog, TsvLog, int]:
+    """Check that a session can be resumed and reopen its logs; return how many trials it holds.
 
-    try:
-        record = json.loads(paths.session_json.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as e:
-        raise SessionError(f"cannot read {paths.session_json}: {e}") from None
+    What a run killed at any instant can leave is rebuilt from what exists: a
+    session.json that is missing or unreadable (from its staged copy, else anew
+    from the experiment, noted under ``rebuilt``), a missing sidecar, a trial or
+    events log that is missing or was cut off in its header. A trial log's
+    rows are never invented: a log of events with no trial log to match is refused.
+    """
+    rebuilt: list[str] = []
+    record = _read_record(paths)
+    if record is None:
+        record = _new_record(lx, participant, session, trials, seed, conditions, info,
+                             device.profile, responder, command, run_info, paths)
+        record["started_at"] = None                 # not known any more
+        rebuilt.append("session.json (missing or unreadable; made anew from the experiment)")
+    stale_tmp = paths.session_json.with_name(paths.session_json.name + ".tmp")
+    stale_tmp.unlink(missing_ok=True)
     if record.get("status") == "completed":
         raise SessionError(f"session in {paths.dir} is already completed; nothing to resume")
     if record.get("experiment_file", {}).get("sha256") != lx.sha256:
@@ -402,8 +612,34 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed
             [t.condition.index for t in trials]:
         raise SessionError(f"the trial list of {paths.dir} cannot be rebuilt (seed or order "
                            "differ); it cannot be resumed")
-    beh, rows, cut_beh = TsvLog.reopen(paths.beh_tsv, trial_columns(factors, camera))
+    recorded = record.get("device_spec") or (record.get("device") or {}).get("backend")
+    if device_kind(recorded) != info.backend and not force_device:
+        raise SessionError(
+            f"session {paths.dir} ran on {recorded} ({_device_words(record.get('device'))}), "
+            f"but the device given is {run_info['device_spec']} ({info.backend}): the "
+            f"participant would {_what_they_feel(info.backend)}. Resume on a {device_kind(recorded)} "
+            f"device (--device {_device_hint(recorded)}), or add --force-device to continue "
+            f"on {run_info['device_spec']} anyway.")
+    was_kind = record.get("participant_kind")
+    if was_kind and was_kind != run_info["participant_kind"] and \
+            "model" in (was_kind, run_info["participant_kind"]):
+        raise SessionError(f"session {paths.dir} was answered by a {was_kind}, and cannot be "
+                           f"continued by a {run_info['participant_kind']}; start a new session")
+    if not paths.beh_json.is_file():
+        write_json_atomic(paths.beh_json, sidecar(lx))
+        rebuilt.append(paths.beh_json.name)
     cols = trial_columns(factors, camera)
+    if _needs_header(paths.beh_tsv):
+        if _has_rows(paths.events_tsv):
+            raise SessionError(f"{paths.beh_tsv} is missing but {paths.events_tsv.name} holds "
+                               "played trials: the answers are lost and the session cannot be "
+                               "resumed; start a new session (the folder is left as it is)")
+        _write_header(paths.beh_tsv, cols)
+        rebuilt.append(paths.beh_tsv.name)
+    if _needs_header(paths.events_tsv):
+        _write_header(paths.events_tsv, EVENT_COLUMNS)
+        rebuilt.append(paths.events_tsv.name)
+    beh, rows, cut_beh = TsvLog.reopen(paths.beh_tsv, cols)
     per_trial = len(lx.experiment.asked())          # one row per question
     for i, row in enumerate(rows):
         k = i // per_trial + 1
@@ -422,13 +658,73 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, trials: list[Trial], seed
         events.truncate_rows(keep)          # events of the trial that was cut short
     record.setdefault("resumes", []).append({
         "at": now_iso(), "trials_done": done, "device": info.model_dump(mode="json"),
+        "device_spec": run_info["device_spec"], "responder_spec": run_info["responder_spec"],
+        "forced_device": bool(force_device and device_kind(recorded) != info.backend),
+        "process": _process(), "command": command or sys.argv,
         "removed": {"beh_bytes": cut_beh, "event_rows": len(erows) - keep,
                     "event_bytes": cut_ev},
+        "rebuilt": rebuilt,
         "previous_status": record.get("status"), "previous_reason": record.get("reason")})
     record.update(status="running", reason=None, ended_at=None, checksums=None,
-                  n_trials_logged=done)
+                  n_trials_logged=done, process=_process())
+    for key in ("device_spec", "responder_spec", "data_dir", "participant_kind"):
+        if run_info.get(key) is not None:
+            record[key] = run_info[key]
     write_json_atomic(paths.session_json, record)
     return record, beh, events, done
+
+
+def _read_record(paths: SessionPaths) -> dict | None:
+    """session.json, or its staged copy left by a write cut short; None if neither reads."""
+    for f in (paths.session_json, paths.session_json.with_name("session.json.tmp")):
+        try:
+            data = json.loads(f.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if isinstance(data, dict) and data.get("format") == "vtexp-session":
+            return data
+    return None
+
+
+def _needs_header(path: Path) -> bool:
+    """A log that is missing, or was created and cut off before its header was whole."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return True
+    return b"\n" not in data
+
+
+def _has_rows(path: Path) -> bool:
+    try:
+        return path.read_bytes().count(b"\n") > 1
+    except OSError:
+        return False
+
+
+def _write_header(path: Path, columns: list[str]) -> None:
+    path.unlink(missing_ok=True)
+    TsvLog(path, columns).close()
+
+
+def _device_words(info: dict | None) -> str:
+    info = info or {}
+    backend = info.get("backend", "?")
+    if backend == "serial":
+        return (f"a tactile array on {info.get('port') or 'a serial port'}, firmware "
+                f"{info.get('firmware') or '?'}")
+    return {"sim": "the simulator, which drives nothing", "emulator":
+            "the emulator, which drives nothing"}.get(backend, backend)
+
+
+def _what_they_feel(backend: str) -> str:
+    return ("feel nothing" if backend in ("sim", "emulator")
+            else "feel a device the session did not start on")
+
+
+def _device_hint(recorded: str | None) -> str:
+    return recorded if device_kind(recorded) != "serial" or ":" in (recorded or "") \
+        else "serial:PORT"
 
 
 def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Responder,
@@ -442,6 +738,8 @@ def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Respond
             return _run_trial(exp, trial, device, responder, camera)
         except DeviceError as e:
             error = e
+            # The participant sees (and hears) that the session is paused, not "feel it".
+            call_hook(responder, "device_paused", trial)
             choice = on_device_error(error, trial) if on_device_error else "abort"
             while choice == "retry":
                 try:
@@ -454,6 +752,8 @@ def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Respond
                 except DeviceError as again:    # still unplugged: ask again
                     error = again
                     choice = on_device_error(error, trial)
+            if choice != "abort":
+                call_hook(responder, "device_resumed", trial)
             if choice == "retry":
                 continue
             if choice == "skip":

@@ -14,6 +14,17 @@ What is tolerated and what is refused (decided for issue 6):
 - a file or folder that is **not a vtexp log** is refused with a message
   saying what was expected (a folder holding ``session.json`` of format
   ``vtexp-session`` and a trial log with ``trial`` and ``answer`` columns).
+
+Decided for issue 13:
+
+- a trial logged **twice** (two runs of one session at once, before sessions
+  were locked) is refused, naming the session and the trials, unless
+  ``duplicates="first"`` (``vtexp analyze --drop-duplicates``) keeps the first
+  row of each and reports the rest; duplicated device events are reported;
+- **model participants** (and scripted answers) are never pooled with people:
+  a mix is analysed as the people alone, the simulated sessions listed as left
+  out, unless ``include_simulated`` (``vtexp analyze --include-simulated``);
+  folders of simulated sessions alone are analysed as they are.
 """
 
 from __future__ import annotations
@@ -37,10 +48,20 @@ class SessionData:
     warnings: list[str] = field(default_factory=list)
     checksum: str = "verified"          # verified | MISMATCH | not recorded | file missing
     mismatched: list[str] = field(default_factory=list)
+    duplicated_trials: list[int] = field(default_factory=list)
 
     @property
     def status(self) -> str:
         return str(self.meta.get("status"))
+
+    @property
+    def simulated(self) -> bool:
+        """Answered by a model participant or a script, not a person."""
+        kind = self.meta.get("participant_kind")
+        if kind is not None:
+            return kind != "person"
+        responder = str(self.meta.get("responder") or "")     # sessions before issue 13
+        return responder.startswith(("model observer", "scripted"))
 
     @property
     def factors(self) -> list[str]:
@@ -71,7 +92,10 @@ def find_sessions(paths: list[Path | str]) -> list[Path]:
         elif (p / "session.json").is_file():
             found.append(p)
         else:
-            found.extend(sorted(q.parent for q in p.rglob("session.json")))
+            # Hidden folders hold no session: a session being started is staged in one.
+            found.extend(sorted(q.parent for q in p.rglob("session.json")
+                                if not any(part.startswith(".")
+                                           for part in q.parent.relative_to(p).parts)))
     seen, out = set(), []
     for d in found:
         r = d.resolve()
@@ -137,25 +161,81 @@ def read_session(d: Path | str) -> SessionData:
         df[col] = pd.to_numeric(df[col], errors="coerce").astype("Int64")
     for col in ("rt_s", "stimulus_onset_ms", "stimulus_duration_ms"):
         df[col] = pd.to_numeric(df[col], errors="coerce")
+    dup = df.duplicated(["trial", "question"], keep="first") if "question" in df.columns \
+        else df.duplicated(["trial"], keep="first")
+    duplicated = sorted({int(t) for t in df.loc[dup, "trial"].dropna()})
+    if duplicated:
+        warnings.append(f"{beh}: {int(dup.sum())} rows log a trial a second time (trials "
+                        f"{_ranges(duplicated)}): two runs of the session wrote at once")
+    events = d / str((meta.get("files") or {}).get("events", ""))
+    if events.is_file() and events.name:
+        lines = events.read_bytes().split(b"\n")[1:]
+        lines = [ln for ln in lines if ln]
+        extra = len(lines) - len(set(lines))
+        if extra:
+            warnings.append(f"{events}: {extra} device events are logged twice")
     df.insert(0, "session", int(meta["session"]))
     df.insert(0, "participant", str(meta["participant"]))
     df.insert(0, "experiment", str(meta["experiment"]))
-    return SessionData(d, meta, df, warnings, checksum, mismatched)
+    data = SessionData(d, meta, df, warnings, checksum, mismatched)
+    data.duplicated_trials = duplicated
+    return data
+
+
+def _ranges(numbers: list[int]) -> str:
+    """[1, 2, 3, 7] -> '1-3, 7'."""
+    out, start = [], None
+    for i, n in enumerate(numbers):
+        if start is None:
+            start = n
+        if i + 1 == len(numbers) or numbers[i + 1] != n + 1:
+            out.append(str(start) if start == n else f"{start}-{n}")
+            start = None
+    return ", ".join(out)
 
 
 def load_sessions(paths: list[Path | str], *, include_practice: bool = False,
-                  strict: bool = False) -> tuple[pd.DataFrame, list[SessionData]]:
+                  strict: bool = False, duplicates: str = "error",
+                  include_simulated: bool = False, notes: list[str] | None = None
+                  ) -> tuple[pd.DataFrame, list[SessionData]]:
     """Tidy trial table (one row per trial) of every session found under ``paths``.
 
     Practice trials are left out unless ``include_practice``; replays and
     reaction times are kept. With ``strict``, a file whose checksum differs
     from the one in its ``session.json`` is an error instead of a warning.
+    A trial logged twice is an error unless ``duplicates="first"`` (its first
+    row is kept). Simulated sessions found with people's are left out unless
+    ``include_simulated``; what was left out is said in ``notes``.
     """
     dirs = find_sessions(paths)
     if not dirs:
         raise InputError("no vtexp sessions found (no session.json below "
                          + ", ".join(map(str, paths)) + ")")
     sessions = [read_session(d) for d in dirs]
+    notes = notes if notes is not None else []
+    twice = [s for s in sessions if s.duplicated_trials]
+    if twice and duplicates != "first":
+        raise InputError("trials logged twice (two runs of one session wrote at once): "
+                         + "; ".join(f"{s.dir}: trials {_ranges(s.duplicated_trials)}"
+                                     for s in twice)
+                         + ". Nothing was analysed; --drop-duplicates keeps the first row "
+                         "of each such trial")
+    for s in twice:
+        keep = ~s.trials.duplicated(["trial", "question"], keep="first")
+        s.trials = s.trials[keep].reset_index(drop=True)
+    people = [s for s in sessions if not s.simulated]
+    models = [s for s in sessions if s.simulated]
+    if people and models and not include_simulated:
+        notes.append(f"{len(models)} simulated session(s) (model participants or scripted "
+                     f"answers: {', '.join('sub-' + str(s.meta['participant']) for s in models)}"
+                     ") left out, so that they are not pooled with people's; "
+                     "--include-simulated pools them")
+        sessions = people
+    elif models:
+        notes.append(f"{len(models)} of these sessions are simulated (model participants or "
+                     "scripted answers), not people"
+                     + (": pooled with people's as asked (--include-simulated)"
+                        if people else ""))
     bad = [f for s in sessions for f in s.mismatched]
     if strict and bad:
         raise InputError("checksum mismatch: " + ", ".join(bad) + " changed since the session "

@@ -62,13 +62,29 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except VtexpError as e:
         err(str(e))
+        _after_error(args)
         return e.exit_code
     except KeyboardInterrupt:
         err("interrupted; every actuator was turned off and completed trials are kept")
+        _after_error(args)
         return 130
     except BrokenPipeError:                     # e.g. 'vtexp plan ... | head'
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except BaseException:                       # a bug: its traceback, and how to go on
+        _after_error(args)
+        raise
+
+
+def _after_error(args) -> None:
+    """What a command set to say after it failed (``vtexp run``: how to continue)."""
+    hint = getattr(args, "after_error", None)
+    try:
+        text = hint() if callable(hint) else None
+    except Exception:           # the hint must never hide the error itself
+        text = None
+    if text:
+        print(text, file=sys.stderr, flush=True)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,12 @@ def cmd_analyze(args) -> int:
     from ..analysis import load_sessions, recognition_rates
     from ..analysis.report import markdown_table, write_reports
 
-    trials, sessions = load_sessions(args.dirs, strict=args.strict)
+    notes: list[str] = []
+    trials, sessions = load_sessions(args.dirs, strict=args.strict,
+                                     duplicates="first" if args.drop_duplicates else "error",
+                                     include_simulated=args.include_simulated, notes=notes)
+    for note in notes:
+        print(f"vtexp: note: {note}", file=sys.stderr)
     for s in sessions:
         for w in s.warnings:
             kind = "WARNING: CHECKSUM MISMATCH" if "checksum differs" in w else "warning"
@@ -68,4 +73,10 @@ def register(sub) -> None:
     s.add_argument("--strict", action="store_true",
                    help="refuse sessions whose files changed since they ended (checksum "
                         "mismatch) instead of warning")
+    s.add_argument("--drop-duplicates", action="store_true",
+                   help="a trial logged twice (two runs of one session at once) keeps its "
+                        "first row, reported, instead of being refused")
+    s.add_argument("--include-simulated", action="store_true",
+                   help="pool simulated sessions (model participants, scripted answers) with "
+                        "people's; by default they are left out when people's are present")
     s.set_defaults(func=cmd_analyze)

@@ -76,7 +76,7 @@ def cmd_demo(args) -> int:
         conds = compile_conditions(lx, model.profile)
         n_trials = 0
         for i in range(1, args.participants + 1):
-            pid = f"m{i:02d}"
+            pid = f"sim{i:02d}"
             res = run_session(lx, pid, 1, SimDevice(model.profile),
                               ModelObserver(model, pid, 1, seed=args.seed), root,
                               conditions=conds, command=sys.argv)

@@ -22,7 +22,8 @@ def yes(prompt: str) -> bool:
 
 
 def status_of(x: dict) -> str:
-    status = "did not close (killed?)" if x["status"] == "running" else x["status"]
+    status = {"running": "running now" if x.get("held_by") else "did not close (killed?)",
+              "interrupted": "interrupted (its process died)"}.get(x["status"], x["status"])
     if x["planned"] is None:
         return f"{status}, no session.json"
     return f"{status}, {x['logged']} of {x['planned']} trials"
@@ -32,6 +33,8 @@ def describe_session(x: dict) -> str:
     line = f"ses-{x['session']}  {status_of(x)}"
     if x["started"]:
         line += f", started {x['started'][:16].replace('T', ' ')}"
+    if x.get("device"):
+        line += f", on {x['device']}"
     return line + (f" ({x['reason']})" if x["reason"] else "")
 
 
@@ -50,12 +53,14 @@ def ask_participant() -> str:
             print(f"  {e.message}", flush=True)
 
 
-def ask_session(participant: str, existing: list[dict], args, lx) -> int:
+def ask_session(participant: str, existing: list[dict], args, lx) -> tuple[int, bool]:
+    """The session to run and whether to continue it: the last unfinished session is
+    offered first (Enter continues it), else the next free number."""
     from ..errors import SessionError
     from ..session import check_session
 
     where = Path(args.data) / lx.experiment.name / f"sub-{participant}"
-    unfinished = [x for x in existing if x["status"] != "completed"]
+    unfinished = [x for x in existing if x["status"] != "completed" and not x.get("held_by")]
     if existing:
         out(f"Sessions of participant {participant} already in {where}:")
         for x in existing:
@@ -68,13 +73,13 @@ def ask_session(participant: str, existing: list[dict], args, lx) -> int:
                                f"{where.parent} to resume (--resume)")
         default, prompt = unfinished[-1]["session"], "Session to resume"
     else:
+        if unfinished:
+            last = unfinished[-1]
+            if _continue(f"Session {last['session']} did not finish ({status_of(last)}). "
+                         "Continue it? [Y/n] "):
+                return last["session"], True
         default = max((x["session"] for x in existing), default=0) + 1
-        prompt = "Session"
-        if existing and existing[-1]["status"] != "completed":
-            last = existing[-1]["session"]
-            out(f"Session {last} did not finish. To continue it, stop here (Ctrl-C) and run "
-                f"'vtexp run {args.file} --participant {participant} --session {last} "
-                "--resume'.")
+        prompt = "New session"
     while True:
         try:
             answer = input(f"{prompt} [{default}]: ").strip()
@@ -97,7 +102,22 @@ def ask_session(participant: str, existing: list[dict], args, lx) -> int:
             print(f"  session {session} already exists ({status_of(known)}); choose another "
                   "number, or stop (Ctrl-C) and continue it with --resume", flush=True)
         else:
-            return session
+            return session, bool(args.resume)
+
+
+def _continue(prompt: str) -> bool:
+    """Yes unless the answer is no (Enter continues the unfinished session)."""
+    while True:
+        try:
+            answer = input(prompt).strip().lower()
+        except (EOFError, OSError):
+            raise InputError("missing: no answer to whether to continue the unfinished "
+                             "session", key="--session") from None
+        if answer in ("", "y", "yes"):
+            return True
+        if answer in ("n", "no"):
+            return False
+        print("  answer y (continue it) or n (start a new session)", flush=True)
 
 
 def ask_experimenter(error, trial) -> str:

@@ -1,47 +1,101 @@
 """``vtexp run``: one participant's session, with the experimenter at the terminal.
 
-Who and which session (asked at a terminal when not given), the device check
-before the first trial, the session itself with a progress line per trial, and
-the experimenter's choices when the device fails (:mod:`vtexp.cli.prompts`).
+Who and which session (asked at a terminal when not given; an unfinished session
+is offered to be continued), the device check before the first trial, the
+session itself with a progress line per trial, and the experimenter's choices
+when the device fails (:mod:`vtexp.cli.prompts`).
+
+A resumed session takes its device and responder from its ``session.json``
+unless given, and refuses a device of another kind (``sim``, ``serial``,
+``emulator``) than the one it ran on without ``--force-device``. Whenever a run
+ends before the session does (Escape, Ctrl-C, a device fault, a crash, or a
+session found dead at the next start), the command that continues it is printed,
+complete and ready to paste.
 """
 
 from __future__ import annotations
 
+import shlex
 import sys
 import time
+from datetime import datetime
 from pathlib import Path
 
 from ..errors import InputError
-from ._io import out
+from ._io import out, program
 from .prompts import (ask_experimenter, ask_participant, ask_session, place_object,
                       status_of, yes)
 
 
+def time_left_s(first_start: float, now: float, trials_done: int, trials_left: int,
+                iti_s: float) -> float:
+    """Seconds the rest of the session should take, from the trials of this run.
+
+    A trial's time is measured from one trial's start to the next's, so it holds
+    the answer, the replays and the pause between trials, and nothing from before
+    the first trial (instructions, device check). ``now`` is when the last trial
+    done was logged, before its pause: that pause is added.
+    """
+    if trials_done < 1:
+        return float("nan")
+    per_trial = (now - first_start + iti_s) / trials_done
+    return per_trial * trials_left
+
+
+def format_minutes(seconds: float) -> str:
+    if seconds != seconds:          # nan
+        return "?"
+    if seconds < 60:
+        return "<1 min"
+    return f"{round(seconds / 60):d} min"
+
+
 class _Progress:
-    def __init__(self, quiet: bool):
+    def __init__(self, quiet: bool, iti_s: float = 0.0, clock=time.time):
         self.quiet = quiet
-        self.t0 = time.monotonic()
+        self.iti_s = iti_s
+        self.clock = clock
+        self.first_start: float | None = None
+        self.trials: set[int] = set()
         self.correct = 0
         self.scored = 0
-        self.played = 0
 
     def __call__(self, rec, trial, total) -> None:
-        self.played += 1
+        self.trials.add(trial.number)
+        if self.first_start is None:
+            self.first_start = datetime.fromisoformat(rec.started_at).timestamp() \
+                if rec.started_at else self.clock()
         if rec.correct is not None:
             self.scored += 1
             self.correct += int(rec.correct)
         if self.quiet:
             return
-        el = time.monotonic() - self.t0
-        eta = el / self.played * (total - trial.number)     # a resumed run starts midway
+        now = self.clock()
+        left = time_left_s(self.first_start, now, len(self.trials), total - trial.number,
+                           self.iti_s)
+        el = now - self.first_start
         acc = f"{self.correct / self.scored:5.1%}" if self.scored else "  n/a"
         print(f"  trial {trial.number:>4}/{total}  {trial.condition.label:<40} "
-              f"answer {rec.answer:<12} elapsed {el:6.1f}s  left ~{eta:5.1f}s  acc {acc}",
-              file=sys.stderr, flush=True)
+              f"answer {str(rec.answer):<12} elapsed {int(el // 60):d}:{int(el % 60):02d}  "
+              f"left ~{format_minutes(left):<7} acc {acc}", file=sys.stderr, flush=True)
+
+
+def resume_command(file, participant: str, session: int, device: str | None,
+                   responder: str | None, data) -> str:
+    """The command that continues a session, complete: it works from any folder."""
+    parts = [program(), "run", str(Path(file).resolve()), "--participant", participant,
+             "--session", str(session)]
+    if device:
+        parts += ["--device", device]
+    if responder:
+        parts += ["--responder", responder]
+    parts += ["--data", str(Path(data).resolve()), "--resume"]
+    return " ".join(parts[:1] + [shlex.quote(p) for p in parts[1:]])
 
 
 def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet, conds=None,
-             resume=False, *, check_device=False, test_pulse=False, max_trials=None):
+             resume=False, *, check_device=False, test_pulse=False, max_trials=None,
+             force_device=False):
     from ..devices import open_device
     from ..model import DeviceProfile
     from ..responders import make_responder
@@ -56,9 +110,11 @@ def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet,
         if check_device:
             _check_device(device, profile, test_pulse)
         return run_session(lx, participant, session, device, responder, data, conditions=conds,
-                           sinks=(_Progress(quiet),), command=sys.argv,
+                           sinks=(_Progress(quiet, lx.experiment.design.iti_ms / 1000.0),),
+                           command=sys.argv,
                            on_device_error=ask_experimenter if sys.stdin.isatty() else None,
-                           resume=resume, max_trials=max_trials,
+                           resume=resume, max_trials=max_trials, device_spec=device_spec,
+                           responder_spec=responder_spec, force_device=force_device,
                            capture_prompt=place_object if sys.stdin.isatty() else None)
 
 
@@ -94,12 +150,26 @@ def _check_device(device, profile, test_pulse: bool) -> None:
     out("device check passed; no actuator is on")
 
 
-def _who_and_which(args, lx) -> tuple[str, int]:
-    """The participant and session: from the options, else asked at the terminal."""
+def _report_dead(args, lx) -> None:
+    """Sessions of this experiment whose process died are marked, with how to continue."""
+    from ..session import mark_dead_sessions, recorded_run
+
+    for x in mark_dead_sessions(args.data, lx.experiment.name):
+        rec = recorded_run(x["dir"])
+        out(f"Session {x['session']} of participant {x['participant']} did not close "
+            f"({x['logged']} of {x['planned']} trials logged): {x['reason']}. It is marked "
+            "interrupted. To continue it:\n  "
+            + resume_command(args.file, x["participant"], x["session"], rec.get("device"),
+                             rec.get("responder"), args.data))
+
+
+def _who_and_which(args, lx) -> tuple[str, int, bool]:
+    """The participant, the session and whether to resume it: from the options, else
+    asked at the terminal (which offers to continue an unfinished session)."""
     from ..errors import SessionAborted, SessionError
     from ..session import check_participant, check_session, list_sessions
 
-    participant, session = args.participant, args.session
+    participant, session, resume = args.participant, args.session, args.resume
     if participant is None and not sys.stdin.isatty():
         raise InputError("missing: give the participant id (e.g. --participant 01), or run "
                          "'vtexp run' at a terminal to be asked for it", key="--participant")
@@ -109,7 +179,7 @@ def _who_and_which(args, lx) -> tuple[str, int]:
             participant = ask_participant()
             existing = list_sessions(args.data, exp.name, participant)
             if session is None:
-                session = ask_session(participant, existing, args, lx)
+                session, resume = ask_session(participant, existing, args, lx)
         else:
             existing = list_sessions(args.data, exp.name, participant)
     except KeyboardInterrupt:
@@ -118,18 +188,51 @@ def _who_and_which(args, lx) -> tuple[str, int]:
     check_participant(participant)
     check_session(session)
     clash = next((x for x in existing if x["session"] == session), None)
-    if clash and not args.resume:           # say so now, before the device is opened
+    if clash and clash.get("held_by"):
+        from ..lock import describe_holder
+        raise SessionError(f"session {session} of participant {participant} is running now in "
+                           f"another vtexp process ({describe_holder(clash['held_by'])}); "
+                           "nothing was touched.")
+    if clash and not resume:           # say so now, before the device is opened
         free = max(x["session"] for x in existing) + 1
+        hint = "" if clash["status"] == "completed" else (
+            " To continue it: " + resume_command(args.file, participant, session,
+                                                 args.device or clash.get("device"),
+                                                 args.responder or clash.get("responder"),
+                                                 args.data))
         raise SessionError(f"session {session} of participant {participant} already exists "
                            f"in {Path(args.data) / exp.name / f'sub-{participant}'} "
                            f"({status_of(clash)}); nothing was overwritten. Use "
                            f"--resume to continue it, or another --session number (the "
-                           f"next free one is {free}).")
-    return participant, session
+                           f"next free one is {free}).{hint}")
+    return participant, session, resume
+
+
+def _specs(args, lx, participant: str, session: int, resume: bool) -> tuple[str, str]:
+    """The device and responder: as given, else (resuming) as recorded, else the defaults."""
+    from ..session import SessionPaths, recorded_run
+
+    device, responder = args.device, args.responder
+    if resume:
+        rec = recorded_run(SessionPaths.of(args.data, lx.experiment.name, lx.experiment.task_label,
+                                           participant, session).dir)
+        if device is None and rec.get("device"):
+            device = rec["device"]
+            out(f"device as recorded in session.json: {device}")
+        if responder is None and rec.get("responder"):
+            responder = rec["responder"]
+            out(f"responder as recorded in session.json: {responder}")
+    if responder is None:
+        raise InputError("missing: who answers, e.g. --responder window (the participant's "
+                         "window) or --responder console"
+                         + (" (this session's session.json does not record it)" if resume
+                            else ""), key="--responder")
+    return device or "sim", responder
 
 
 def cmd_run(args) -> int:
     from ..compile import load_and_compile
+    from ..session import SessionPaths, recorded_run
 
     if args.max_trials is not None and args.max_trials < 1:
         raise InputError(f"must be 1 or more (got {args.max_trials})", key="--max-trials")
@@ -137,18 +240,34 @@ def cmd_run(args) -> int:
         raise InputError("asks the experimenter at a terminal before it plays; standard "
                          "input is not a terminal", key="--test-pulse")
     lx, conds = load_and_compile(args.file)
-    participant, session = _who_and_which(args, lx)
-    res = _run_one(lx, participant, session, args.device, args.responder,
-                   args.data, args.quiet, conds, resume=args.resume, check_device=True,
-                   test_pulse=args.test_pulse, max_trials=args.max_trials)
+    _report_dead(args, lx)
+    participant, session, resume = _who_and_which(args, lx)
+    device, responder = _specs(args, lx, participant, session, resume)
+    paths = SessionPaths.of(args.data, lx.experiment.name, lx.experiment.task_label,
+                            participant, session)
+
+    def hint() -> str | None:
+        """How to continue the session, if this run left it unfinished."""
+        rec = recorded_run(paths.dir)
+        if not rec or rec.get("status") == "completed":
+            return None
+        return (f"To continue session {session} of participant {participant} where it "
+                "stopped:\n  " + resume_command(args.file, participant, session,
+                                                rec.get("device") or device,
+                                                rec.get("responder") or responder, args.data))
+    args.after_error = hint
+    res = _run_one(lx, participant, session, device, responder,
+                   args.data, args.quiet, conds, resume=resume, check_device=True,
+                   test_pulse=args.test_pulse, max_trials=args.max_trials,
+                   force_device=args.force_device)
     acc = [r.correct for r in res.records if r.correct is not None]
     n = len({r.trial for r in res.records})
     out(f"session {res.status}: {n} trials logged in {res.paths.dir}"
         + (f"; {sum(acc)}/{len(acc)} correct" if acc else ""))
     if res.status == "aborted":             # only --max-trials ends a run this way
         out(f"stopped after {n} trial{'' if n == 1 else 's'} as asked (--max-trials "
-            f"{args.max_trials}); to continue: vtexp run {args.file} --participant "
-            f"{participant} --session {session} --resume")
+            f"{args.max_trials}); to continue: "
+            + resume_command(args.file, participant, session, device, responder, args.data))
     return 0
 
 
@@ -157,27 +276,36 @@ def register(sub) -> None:
     s = sub.add_parser("run", help="run a session")
     s.add_argument("file", metavar="FILE")
     s.add_argument("--participant", "-p",
-                   help="participant id, letters and digits; asked at a terminal if not given")
+                   help="participant id, letters and digits; asked at a terminal if not given "
+                        "(ids starting with 'sim' are kept for model participants)")
     s.add_argument("--session", "-s", type=int,
                    help="session number (default 1; asked at a terminal with the participant "
                         "id, showing the sessions that exist)")
-    s.add_argument("--device", default="sim",
+    s.add_argument("--device",
                    help="sim (default), sim:realtime, serial:PORT or emulator; checked before "
-                        "the first trial (identity, round trip, all actuators off)")
-    s.add_argument("--responder", required=True,
+                        "the first trial (identity, round trip, all actuators off). With "
+                        "--resume, the one recorded in session.json unless given")
+    s.add_argument("--responder",
                    help="who answers: console (in this terminal) | scripted:correct | "
                         "scripted:random | scripted:accuracy=P | scripted:answers=FILE | "
                         "model[:seed=N,typical] (a model participant, see 'vtexp simulate') | "
-                        "window (the "
-                        "participant's PsychoPy window, fullscreen on screen 0; options "
-                        "after a colon, comma-separated: windowed, fullscreen, screen=N, "
-                        "size=WxH, abort=KEY (default escape), e.g. "
-                        "window:windowed,size=1024x768 or window:screen=1; needs the "
-                        "'gui' extra)")
+                        "window (the participant's PsychoPy window, fullscreen on screen 0; "
+                        "options after a colon, comma-separated: windowed, fullscreen, "
+                        "screen=N, size=WxH, abort=KEY (default escape), scale=S (text S "
+                        "times larger, 1-2.5), audio (every text spoken, answers by keys), "
+                        "lang=LANG (espeak-ng's), noise=on|off (masking noise during each "
+                        "stimulus), e.g. window:windowed,size=1024x768 or "
+                        "window:audio,lang=de; needs the 'gui' extra). Required, except "
+                        "with --resume, which takes the one recorded in session.json")
     s.add_argument("--data", default="data", help="data folder (default: ./data)")
     s.add_argument("--quiet", "-q", action="store_true", help="no per-trial progress")
     s.add_argument("--resume", action="store_true",
-                   help="continue this participant's unfinished session at its next trial")
+                   help="continue this participant's unfinished session at its next trial, "
+                        "with the device and responder recorded in its session.json unless "
+                        "given")
+    s.add_argument("--force-device", action="store_true",
+                   help="with --resume, continue on a device of another kind than the one "
+                        "the session ran on (e.g. sim after serial)")
     s.add_argument("--max-trials", type=int, metavar="N",
                    help="stop after N trials (status aborted, resumable with --resume)")
     s.add_argument("--test-pulse", action="store_true",

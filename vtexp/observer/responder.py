@@ -18,6 +18,8 @@ class ModelObserver:
     (``stimulus_played``); the model never asks to feel a stimulus again.
     """
 
+    participant_kind = "model"         # ids start with 'sim'; never pooled with people
+
     def __init__(self, model: ObserverModel, participant: str, session: int = 1, *,
                  seed: int = 0, typical: bool = False):
         self.model = model

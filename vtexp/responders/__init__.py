@@ -23,7 +23,7 @@ def make_responder(spec: str, participant: str, session: int, lx=None) -> Respon
         return make_console(arg)
     if kind == "window":
         from .window import make_window     # PsychoPy is imported only here
-        return make_window(arg)
+        return make_window(arg, lx)
     raise InputError(f"unknown responder {spec!r}; available: console, scripted:correct, "
                      "scripted:random, scripted:accuracy=P, scripted:answers=FILE, "
                      "model[:seed=N,typical], "

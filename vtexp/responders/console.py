@@ -23,6 +23,7 @@ from .base import Replay, Response
 
 class ConsoleResponder:
     description = "console"
+    participant_kind = "person"
 
     def __init__(self, stdin: TextIO | None = None, stdout: TextIO | None = None):
         self.stdin = stdin or sys.stdin

@@ -25,6 +25,7 @@ Rule = Callable[[ChoiceQuestion, Trial], str]
 
 
 class ScriptedResponder:
+    participant_kind = "scripted"      # not a person: kept apart in analyses
     def __init__(self, rule: Rule | None = None, *, answers: Sequence[str] | None = None,
                  description: str = "scripted", replays: int = 0):
         if (rule is None) == (answers is None):

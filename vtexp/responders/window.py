@@ -50,6 +50,9 @@ from collections.abc import Callable, Sequence
 from ..design import Trial
 from ..errors import InputError, SessionAborted, SessionError
 from .base import Replay, Response
+from .layout import GAP, LINE as LAYOUT_LINE, MIN_TEXT, PAD as LAYOUT_PAD, Box, Label, \
+    LayoutError, Screen, grid as layout_grid, needed_height, text_block
+from .speech import PsychopyAudio, Speech, Voice, masking_noise, phrase_book
 
 INSTALL_HELP = (
     "the participant window needs PsychoPy, the 'gui' extra: pip install -e '.[gui]' "
@@ -112,6 +115,7 @@ class Button:
     h: float
     key: str | None = None        # keyboard shortcut shown on the button
     enabled: bool = True
+    cell: Cell | None = None      # its computed place, label and key hint
 
     def contains(self, pos: Sequence[float]) -> bool:
         return abs(pos[0] - self.x) <= self.w / 2 and abs(pos[1] - self.y) <= self.h / 2
@@ -123,10 +127,16 @@ class WindowOptions:
     screen: int = 0
     size: tuple[int, int] = (1280, 800)
     abort_key: str = "escape"
+    scale: float | None = None          # None: the experiment's (presentation.scale) or 1
+    audio: bool | None = None           # None: the experiment's (presentation.audio)
+    language: str | None = None
+    noise: bool | None = None
 
     @classmethod
     def parse(cls, spec: str) -> WindowOptions:
-        """``windowed``, ``fullscreen``, ``screen=N``, ``size=WxH``, ``abort=KEY``, comma-separated."""
+        """``windowed``, ``fullscreen``, ``screen=N``, ``size=WxH``, ``abort=KEY``,
+        ``scale=S``, ``audio``, ``audio=off``, ``lang=LANG``, ``noise=on|off``,
+        comma-separated."""
         opts: dict = {}
         for part in filter(None, (p.strip() for p in spec.split(","))):
             name, eq, value = part.partition("=")
@@ -142,34 +152,138 @@ class WindowOptions:
                 opts["size"] = (int(w), int(h))
             elif name == "abort" and eq and value:
                 opts["abort_key"] = value.lower()
+            elif name == "scale" and eq:
+                try:
+                    opts["scale"] = float(value)
+                except ValueError:
+                    opts["scale"] = -1.0
+                if not 1.0 <= opts["scale"] <= 2.5:
+                    raise InputError(f"window scale {value!r} is not a number from 1 to 2.5 "
+                                     "(2: every text twice the smallest size)", key="--responder")
+            elif name == "audio" and (not eq or value in ("on", "off")):
+                opts["audio"] = value != "off"
+            elif name == "lang" and eq and value:
+                opts["language"] = value
+            elif name == "noise" and value in ("on", "off"):
+                opts["noise"] = value == "on"
             else:
                 raise InputError(f"unknown window option {part!r}; use windowed, fullscreen, "
-                                 "screen=N, size=WxH, abort=KEY (e.g. window:windowed,"
-                                 "size=1024x768)", key="--responder")
+                                 "screen=N, size=WxH, abort=KEY, scale=S, audio, lang=LANG, "
+                                 "noise=on|off (e.g. window:windowed,size=1024x768)",
+                                 key="--responder")
         return cls(**opts)
+
+
+# --------------------------------------------------------------------------- answer keys
+
+LETTERS = "abcdefghijklmnopqrstuvwxyz"
+REPLAY_KEY, REPEAT_KEY = "space", "tab"
+PLUS_KEYS = ("plus", "equal", "num_add", "up")
+MINUS_KEYS = ("minus", "num_subtract", "down")
+ENTER_KEYS = ("return", "num_enter")
+
+
+@dataclass
+class AnswerKeys:
+    """How keys answer a question: each option's key (``keys``) and the key named for it
+    (``names``), or typed digits confirmed with Enter (``typed``)."""
+
+    keys: dict[str, str]
+    names: dict[str, str]
+    typed: bool = False
+    signed: bool = False            # ratings below zero: the minus key first
+    letters: bool = False           # the options are letters, each on its own key
+
+
+def answer_keys(question) -> AnswerKeys:
+    """Keys that match what the participant hears and sees: a letter option on its letter
+    key, other options on 1..9 (or on A..Z past nine), a rating on the number itself
+    (minus first below zero), a number typed and confirmed with Enter."""
+    kind = getattr(question, "kind", "choice")
+    options = [str(o) for o in question.options]
+    if kind == "number":
+        return AnswerKeys({}, {}, typed=True, signed=getattr(question, "minimum", 0) < 0)
+    if kind == "rating":
+        scale = list(question.scale)
+        if all(abs(v) <= 9 for v in scale):
+            keys = {str(abs(v)) if v >= 0 else f"-{abs(v)}": str(v) for v in scale}
+            keys.update({f"num_{k}": v for k, v in list(keys.items()) if not k.startswith("-")})
+            names = {str(v): (f"\u2212 {abs(v)}" if v < 0 else str(v)) for v in scale}
+            return AnswerKeys(keys, names, signed=min(scale) < 0)
+        return AnswerKeys({}, {str(v): str(v) for v in scale}, typed=True,
+                          signed=min(scale) < 0)
+    if all(len(o) == 1 and o.isalpha() for o in options) and \
+            len({o.lower() for o in options}) == len(options):
+        return AnswerKeys({o.lower(): o for o in options}, {o: o.upper() for o in options},
+                          letters=True)
+    if len(options) <= 9:
+        keys = {str(i + 1): o for i, o in enumerate(options)}
+        keys.update({f"num_{i + 1}": o for i, o in enumerate(options)})
+        return AnswerKeys(keys, {o: str(i + 1) for i, o in enumerate(options)})
+    if len(options) <= 26:
+        return AnswerKeys({LETTERS[i]: o for i, o in enumerate(options)},
+                          {o: LETTERS[i].upper() for i, o in enumerate(options)})
+    raise SessionError(f"the question {getattr(question, 'name', '')!r} has {len(options)} "
+                       "options; the participant window gives a key to at most 26")
+
+
+def shown(option: str) -> str:
+    return option.replace("_", " ")
+
+
+def rating_text(v: int, signed: bool) -> str:
+    return f"+{v}" if v > 0 and signed else (f"\u2212{abs(v)}" if v < 0 else str(v))
 
 
 class WindowResponder:
     """Answers come from the participant, in a PsychoPy window.
 
     The window opens on the first screen shown and closes after ``finish`` (or on
-    an abort, or ``close()``). Pass ``win`` to draw in a window made elsewhere.
+    an abort, or ``close()``). Pass ``win`` to draw in a window made elsewhere; pass
+    ``lx`` (the experiment) to lay out every question and render every spoken clip
+    before the first trial; ``audio`` replaces PsychoPy's sound (tests).
     """
 
-    def __init__(self, options: WindowOptions | None = None, *, win=None):
+    participant_kind = "person"
+
+    def __init__(self, options: WindowOptions | None = None, *, win=None, lx=None, audio=None):
         self.options = options or WindowOptions()
         self._core, self._event, self._visual = import_psychopy()
         self.win = win
         self.clock = self._core.Clock()
         self.screen: str | None = None        # name of the screen on show
         self.buttons: list[Button] = []       # what can be clicked on it
+        self.layout: Screen | None = None     # its computed layout
         self._draw: Callable[[], None] | None = None
         self._mouse = None
+        self._mouse_at_entry = None
         self._was_pressed = False
         self._stims: dict[tuple, object] = {}
-        mode = "fullscreen" if self.options.fullscreen else \
-            "windowed {}x{}".format(*self.options.size)
-        self.description = f"window ({mode}, screen {self.options.screen})"
+        self._practice_seen = False
+        self._paused = False
+        self.entered: list[str] = []          # every screen shown, in order
+        pres = getattr(getattr(lx, "experiment", None), "presentation", None)
+        o = self.options
+        self.scale = o.scale if o.scale is not None else (pres.scale if pres else 1.0)
+        self.audio_mode = o.audio if o.audio is not None else bool(pres and pres.audio)
+        self.language = o.language or (pres.language if pres else "en")
+        noise = o.noise if o.noise is not None else (pres.masking_noise if pres else True)
+        self.smallest = MIN_TEXT * self.scale
+        self.speech: Speech | None = None
+        self.lx = lx
+        if self.audio_mode:
+            book = phrase_book(self.language, dict(pres.phrases) if pres else None)
+            name = lx.experiment.name if lx is not None else "any"
+            voice = Voice(name, self.language)
+            self.speech = Speech(voice, audio if audio is not None else PsychopyAudio(), book,
+                                 masking_noise(voice.folder) if noise else None)
+            if lx is not None:
+                voice.prerender(self.sentences(lx.experiment))
+        mode = "fullscreen" if o.fullscreen else "windowed {}x{}".format(*o.size)
+        extra = (f", scale {self.scale:g}" if self.scale != 1 else "") + (
+            f", audio {self.language}" + (", masking noise" if noise else "")
+            if self.audio_mode else "")
+        self.description = f"window ({mode}, screen {o.screen}{extra})"
 
     # -- the window ---------------------------------------------------------------
 
@@ -185,15 +299,25 @@ class WindowResponder:
                 raise SessionError(f"cannot open the participant window on screen "
                                    f"{o.screen} ({type(e).__name__}: {e}); is a display "
                                    "attached (DISPLAY set), and does the screen exist?") from None
+            if self.lx is not None:
+                self.check_layouts(self.lx.experiment)
         if self._mouse is None:
             self._mouse = self._event.Mouse(win=self.win, visible=True)
         return self.win
 
+    @property
+    def aspect(self) -> float:
+        w, h = self.open().size
+        return w / h
+
     def close(self) -> None:
+        if self.speech is not None:
+            self.speech.stop()
+            self.speech.stop_noise()
         if self.win is not None:
             self.win.close()
         self.win = self._mouse = None
-        self.screen, self.buttons, self._draw = None, [], None
+        self.screen, self.buttons, self._draw, self.layout = None, [], None, None
         self._stims.clear()
 
     def __enter__(self):
@@ -202,11 +326,15 @@ class WindowResponder:
     def __exit__(self, *exc):
         self.close()
 
-    def capture(self, path: Path | str) -> Path:
-        """Save the screen on show as a PNG (drawn into the back buffer, not flipped)."""
+    def capture(self, path: Path | str, only=None) -> Path:
+        """Save the screen on show as a PNG (drawn into the back buffer, not flipped);
+        ``only``: draw just that label (the layout tests measure each label alone)."""
         if self._draw is None:
             raise RuntimeError("no screen is on show")
-        self._draw()
+        if only is None:
+            self._draw()
+        else:
+            self._label(only)
         frame = self.win.getMovieFrame(buffer="back")
         self.win.movieFrames.remove(frame)      # saved here, not kept for a movie
         self.win.clearBuffer()
@@ -215,16 +343,122 @@ class WindowResponder:
         frame.save(path)
         return path
 
+    def check_layouts(self, exp) -> None:
+        """Lay out every question of ``exp`` now, so that a scale too large for this
+        screen is said before the first trial, not in the middle of the session."""
+        for q in exp.asked():
+            try:
+                self.question_screen(q, practice=True, replays_left=q.replays,
+                                     answered=None)
+            except LayoutError as e:
+                raise SessionError(f"the question {q.name!r} does not fit a "
+                                   f"{self.win.size[0]}x{self.win.size[1]} window at scale "
+                                   f"{self.scale:g}: {e}; use a smaller scale or a larger "
+                                   "screen") from None
+
+    # -- what is said ------------------------------------------------------------------
+
+    def sentences(self, exp) -> list[str]:
+        """Every sentence a session of ``exp`` may speak (rendered before the first trial)."""
+        sp = self.speech
+        out = [sp.phrase(k) for k in ("headphones", "masking", "keys", "continue", "begin",
+                                      "ready", "practice", "practice_over", "not_a_key",
+                                      "no_replays", "paused", "resumed", "finish", "minus",
+                                      "choose_letter_key")]
+        out += [p.strip() for p in (exp.instructions or "").split("\n---\n")]
+        for q in exp.asked():
+            out += self.question_sentences(q)
+            out += [sp.phrase("replay", left=n) for n in range(1, q.replays + 1)]
+            for o in q.options[:201]:
+                out.append(sp.phrase("answer_taken", answer=self.spoken_answer(q, o)))
+            if q.kind == "number":
+                out += [sp.phrase("too_large", maximum=q.maximum),
+                        sp.phrase("too_small", minimum=q.minimum)]
+                out += [str(d) for d in range(10)]
+        every = exp.design.break_every
+        if every:
+            n = exp.design.repetitions * len(exp.design.conditions or []) or None
+            if n:
+                out += [sp.phrase("break", done=d, total=n) for d in range(every, n, every)]
+        return out
+
+    def question_sentences(self, q) -> list[str]:
+        """The question as spoken: the prompt, then how to answer it."""
+        sp = self.speech
+        ak = answer_keys(q)
+        if q.kind == "number":
+            how = [sp.phrase("number", minimum=q.minimum, maximum=q.maximum)]
+        elif q.kind == "rating":
+            how = [sp.phrase("rating", low=q.low, high=q.high)]
+            if ak.signed:
+                how.append(sp.phrase("rating_negative"))
+            how += [sp.phrase("rating_point", value=self.spoken_number(v), label=q.labels[v])
+                    for v in q.scale if v in q.labels]
+        elif ak.letters:
+            how = [sp.phrase("choose_letter_key")]
+        else:
+            how = [" ".join(sp.phrase("choose_digit", key=ak.names[o], option=shown(o))
+                            for o in q.options)]
+        return [q.prompt, *how]
+
+    def spoken_number(self, v: int) -> str:
+        """-2 as "minus 2", in the phrase book's word: what the participant presses."""
+        return f"{self.speech.phrase('minus')} {abs(v)}" if v < 0 else str(v)
+
+    def spoken_answer(self, q, answer: str) -> str:
+        if q.kind in ("rating", "number") and answer.lstrip("-").isdigit():
+            return self.spoken_number(int(answer))
+        return shown(answer)
+
+    def _say(self, *texts: str, wait: bool = False) -> None:
+        if self.speech is None:
+            return
+        self.speech.say(*texts)
+        if wait:
+            self._until_quiet()
+
+    def _until_quiet(self) -> None:
+        """Keep the screen alive until everything queued has been said (the abort key
+        still works)."""
+        while self.speech is not None and self.speech.busy():
+            self._frame()
+
     # -- the session's hooks ---------------------------------------------------------
 
     def instructions(self, text: str) -> None:
         pages = [p.strip() for p in text.split("\n---\n")] if text.strip() else []
-        for i, page in enumerate(pages or ["Press space to begin."]):
-            more = "next page" if i < len(pages) - 1 else "begin"
-            self._wait_to_continue("instructions", page, f"Press space or click to {more}")
+        pages = pages or [""]
+        for i, page in enumerate(pages):
+            last = i == len(pages) - 1
+            more = "begin" if last else "continue"
+            spoken = [page, self.speech.phrase(more)] if self.speech else []
+            if i == 0 and self.speech is not None:
+                # How to take part comes first: headphones on, then the keys.
+                spoken = [self.speech.phrase("headphones")] + (
+                    [self.speech.phrase("masking")] if self.speech.noise else []) + [
+                    self.speech.phrase("keys")] + spoken
+            self._wait_to_continue("instructions", page or "Press space to begin.",
+                                   f"Press space or click to {'begin' if last else 'go on'}",
+                                   spoken=spoken)
 
     def stimulus_starts(self, trial: Trial) -> None:
-        self._show_ready()
+        if self.speech is not None and trial is not None:
+            if trial.practice:
+                self._practice_seen = True
+            elif self._practice_seen:
+                self._practice_seen = False
+                self._say(self.speech.phrase("practice_over"))
+                self._until_quiet()
+        self._show_ready(trial)
+        if self.speech is not None:
+            lines = ([self.speech.phrase("practice")] if trial is not None and trial.practice
+                     else []) + [self.speech.phrase("ready")]
+            self._say(*lines, wait=True)        # nothing is heard while the stimulus plays
+            self.speech.start_noise()
+
+    def stimulus_played(self, trial: Trial, report) -> None:
+        if self.speech is not None:
+            self.speech.stop_noise()
 
     def stop_requested(self) -> str | None:
         """Why to stop if the abort key was pressed, else None (the device polls this
@@ -244,13 +478,30 @@ class WindowResponder:
         """The stimulus was stopped by the abort key (every actuator is off): close."""
         self.close()
 
+    def device_paused(self, trial: Trial) -> None:
+        """The device failed: the participant is told to wait, not to feel anything."""
+        if self.speech is not None:
+            self.speech.stop_noise()
+        self._paused = True
+        self._message_screen("paused", "Paused\n\nPlease wait: the experimenter is checking "
+                             "the device.")
+        self._say(self.speech.phrase("paused") if self.speech else "")
+        self._frame()              # shown; the terminal waits for the experimenter now
+
+    def device_resumed(self, trial: Trial) -> None:
+        self._paused = False
+        self._say(self.speech.phrase("resumed") if self.speech else "", wait=True)
+
     def pause(self, text: str) -> None:
         self._wait_to_continue("break", text or "Take a break.",
-                               "Press space or click when you are ready to go on")
+                               "Press space or click when you are ready to go on",
+                               spoken=[text])
 
     def finish(self, text: str) -> None:
         try:
-            self._wait_to_continue("end", text, "Press space or click to close", abort=False)
+            self._wait_to_continue("end", text, "Press space or click to close", abort=False,
+                                   spoken=[self.speech.phrase("finish")] if self.speech else [],
+                                   listen_while_speaking=False)
         finally:
             self.close()
 
@@ -260,184 +511,382 @@ class WindowResponder:
         if screen is None:
             raise SessionError(f"the participant window cannot ask a {kind} question "
                                f"(it knows {', '.join(QUESTION_SCREENS)})")
-        return screen(self, question, replay)
+        return screen(self, question, replay, trial)
 
-    # -- question screens (ready for the schema's rating and number questions) ----------
+    # -- question screens ------------------------------------------------------------------
 
     def ask_choice(self, prompt: str, options: Sequence[str], replay: Replay | None = None,
-                   replays_allowed: int = 0) -> Response:
-        """Forced choice: one big button per option; number keys 1..9 choose too."""
-        n = len(options)
-        cols = n if n <= 4 else (3 if n in (5, 6, 9) else 4)
-        rows = -(-n // cols)
-        aspect = self.open().size[0] / self.open().size[1]
-        w = min(0.42, (aspect - 0.1) / cols - 0.03)
-        h = min(0.16, 0.5 / rows - 0.03)
-        buttons = []
-        for i, opt in enumerate(options):
-            r, c = divmod(i, cols)
-            in_row = min(cols, n - r * cols)
-            x = (c - (in_row - 1) / 2) * (w + 0.03)
-            y = 0.1 - r * (h + 0.03)
-            buttons.append(Button(opt.replace("_", " "), opt, x, y, w, h,
-                                  key=str(i + 1) if i < 9 else None))
-        keys = {b.key: b.value for b in buttons if b.key}
-        keys.update({f"num_{k}": v for k, v in list(keys.items())})
-        return self._question("choice", prompt, buttons, keys, replay, replays_allowed)
+                   replays_allowed: int = 0, trial: Trial | None = None) -> Response:
+        """Forced choice: one button per option, each on a key (letters on their letter)."""
+        from types import SimpleNamespace
+        q = SimpleNamespace(kind="choice", name="response", prompt=prompt,
+                            options=list(options), replays=replays_allowed)
+        return self._ask(q, replay, trial)
 
     def ask_rating(self, prompt: str, scale: Sequence[int], labels: dict[int, str],
-                   replay: Replay | None = None, replays_allowed: int = 0) -> Response:
-        """A rating from ``scale`` (e.g. 0..4 or -2..2), ``labels`` under the points named.
-
-        Keys: on a scale of single non-negative digits the digit is the rating;
-        otherwise 1..n choose from the left.
-        """
+                   replay: Replay | None = None, replays_allowed: int = 0,
+                   trial: Trial | None = None) -> Response:
+        """A rating from ``scale`` (e.g. 0..4 or -2..2): the number's key answers, with the
+        minus key first below zero; ``labels`` in the buttons of the points they name."""
+        from types import SimpleNamespace
         scale = list(scale)
-        digits = all(0 <= v <= 9 for v in scale)
-        aspect = self.open().size[0] / self.open().size[1]
-        w = min(0.2, (aspect - 0.1) / len(scale) - 0.02)
-        buttons = []
-        for i, v in enumerate(scale):
-            x = (i - (len(scale) - 1) / 2) * (w + 0.02)
-            key = str(v) if digits else (str(i + 1) if i < 9 else None)
-            text = f"+{v}" if v > 0 and min(scale) < 0 else str(v)
-            buttons.append(Button(text, v, x, 0.05, w, 0.16, key=key))
-        keys = {b.key: b.value for b in buttons if b.key}
-        keys.update({f"num_{k}": v for k, v in list(keys.items())})
-        notes = [(labels[b.value], b.x, 0.05 - 0.16) for b in buttons if b.value in labels]
-        return self._question("rating", prompt, buttons, keys, replay, replays_allowed,
-                              notes=notes, show_keys=not digits)
+        q = SimpleNamespace(kind="rating", name="rating", prompt=prompt, scale=scale,
+                            low=min(scale), high=max(scale), labels=dict(labels),
+                            options=[str(v) for v in scale], replays=replays_allowed)
+        return self._ask(q, replay, trial)
 
     def ask_number(self, prompt: str, minimum: int = 0, maximum: int = 99,
-                   replay: Replay | None = None, replays_allowed: int = 0) -> Response:
-        """A count: digits typed then Enter, or - / + and OK; Backspace corrects."""
-        state = {"text": ""}
+                   replay: Replay | None = None, replays_allowed: int = 0,
+                   trial: Trial | None = None) -> Response:
+        """A count: digits typed then Enter; up/down, + and - change it; Backspace corrects."""
+        from types import SimpleNamespace
+        q = SimpleNamespace(kind="number", name="count", prompt=prompt, minimum=minimum,
+                            maximum=maximum, options=[str(v) for v in range(minimum,
+                                                                             maximum + 1)],
+                            replays=replays_allowed)
+        return self._ask(q, replay, trial)
 
-        def value() -> int | None:
-            return int(state["text"]) if state["text"] else None
+    # -- layout -------------------------------------------------------------------------
 
-        def set_value(v: int) -> None:
-            state["text"] = str(max(minimum, min(maximum, v)))
+    def question_screen(self, q, *, practice: bool, replays_left: int | None, answered,
+                        typed: str = "", status: str = "") -> Screen:
+        """The computed layout of a question screen (see :mod:`.layout`): from the top, the
+        practice banner, the prompt, the answers, one status line (the answer taken, or how
+        to answer when there is room), and the controls (feel it again, hear it again)."""
+        a, s = self.aspect, self.smallest
+        m = 0.02
+        width = a - 2 * m
+        screen = Screen(q.kind)
+        top = 0.5 - m
+        line = s * (LAYOUT_LINE + 2 * LAYOUT_PAD)
+        if practice:
+            screen.labels.append(text_block("PRACTICE – not counted",
+                                            Box(0, top - line / 2, width, line), s, s, "banner"))
+            top -= line + 0.01
+        prompt_h = max(needed_height(q.prompt, width, s) or 1.0, 0.1)
+        screen.labels.append(text_block(q.prompt, Box(0, top - prompt_h / 2, width, prompt_h),
+                                        s, max(s, 0.06), "prompt"))
+        top -= prompt_h + 0.01
+        bottom = -0.5 + m
+        controls = []
+        if replays_left is not None and getattr(q, "replays", 0) > 0:
+            controls.append(("again", f"space: feel it again ({replays_left} left)"
+                             if replays_left else "no replays left"))
+        if self.speech is not None:
+            controls.append(("repeat", "Tab: hear it again"))
+        if controls:
+            for rows in (1, 2):
+                ctl_h = rows * line + (rows - 1) * GAP
+                try:
+                    cells = layout_grid([(lbl, None) for _, lbl in controls],
+                                        Box(0, bottom + ctl_h / 2, width, ctl_h), s, s,
+                                        rows_only=(rows,))
+                    break
+                except LayoutError:
+                    if rows == 2:
+                        raise
+            for (value, _), cell in zip(controls, cells):
+                cell.value = value
+                screen.cells.append(cell)
+            bottom += ctl_h + 0.01
+        status = status or (f"Taken: {shown(str(answered))}" if answered is not None else "")
+        text = status
+        if not text:
+            hint = self._hint(q)
+            text = hint if (needed_height(hint, width, s) or 1.0) <= line + 1e-9 else ""
+        if text.strip():
+            screen.labels.append(text_block(text, Box(0, bottom + line / 2, width, line), s, s,
+                                            "status" if status else "hint"))
+        bottom += line + 0.01
+        area = Box(0, (top + bottom) / 2, width, top - bottom)
+        if area.h < line:
+            raise LayoutError("no room is left for the answers")
+        ak = answer_keys(q)
+        if q.kind == "number":
+            self._number_layout(screen, q, area, typed)
+            return screen
+        if q.kind == "rating":
+            keys = [None if not ak.keys else "key " + ak.names[str(v)] for v in q.scale]
+            try:                    # from one end of the scale to the other, in one row
+                cells = layout_grid([(rating_text(v, ak.signed)
+                                      + (f"\n{q.labels[v]}" if v in q.labels else ""), k)
+                                     for v, k in zip(q.scale, keys)],
+                                    area, s, max(s, 0.075), rows_only=(1,))
+            except LayoutError:     # or, when the labels are too long for that, in a column
+                cells = layout_grid([(rating_text(v, ak.signed)
+                                      + (f"   {q.labels[v]}" if v in q.labels else "")
+                                      + (f"   ({k})" if k else ""), None)
+                                     for v, k in zip(q.scale, keys)],
+                                    area, s, max(s, 0.06), rows_only=(len(q.scale),))
+        else:
+            items = [(shown(o), None if ak.letters else "key " + ak.names[o]) for o in q.options]
+            cells = layout_grid(items, area, s, max(s, 0.075 if not ak.letters else 0.09))
+        for o, cell in zip(q.options, cells):
+            cell.value = o
+            screen.cells.append(cell)
+        return screen
 
-        minus = Button("\u2212", "minus", -0.3, 0.05, 0.16, 0.16)
-        plus = Button("+", "plus", 0.3, 0.05, 0.16, 0.16)
-        ok = Button("OK", "ok", 0, -0.22, 0.3, 0.12, key="Enter")
+    def _hint(self, q) -> str:
+        ak = answer_keys(q)
+        if q.kind == "number":
+            return "Type the number, then Enter (↑ ↓ change it)"
+        if q.kind == "rating":
+            return ("Press the number (− first below 0), or click" if ak.signed
+                    else "Press the number, or click")
+        if ak.letters:
+            return "Press the letter's key, or click"
+        return "Press an answer's key, or click it"
 
-        def on_input(key: str | None, button: Button | None):
-            if key in DIGIT_KEYS:
-                typed = state["text"] + str(DIGIT_KEYS[key])
-                if int(typed) <= maximum:
-                    state["text"] = typed.lstrip("0") or "0"
-            elif key == "backspace":
-                state["text"] = state["text"][:-1]
-            elif key in ("minus", "num_subtract") or (button is minus):
-                set_value((value() if value() is not None else minimum + 1) - 1)
-            elif key in ("plus", "equal", "num_add") or (button is plus):
-                set_value((value() if value() is not None else minimum - 1) + 1)
-            elif (key in ("return", "num_enter") or button is ok) and value() is not None \
-                    and value() >= minimum:
-                return value()
-            ok.enabled = value() is not None and value() >= minimum
-            return None
+    def _number_layout(self, screen: Screen, q, area: Box, typed: str) -> None:
+        """The number typed, between a minus and a plus button; OK below; its range."""
+        s = self.smallest
+        line = s * (LAYOUT_LINE + 2 * LAYOUT_PAD)
+        range_h = line if area.h >= 4 * line else 0.0
+        row_h = min(0.22, area.h - line - range_h - 0.02)
+        if row_h < line:
+            raise LayoutError("no room for the number and its buttons")
+        y = area.top - row_h / 2
+        bw = max(0.12, min(0.2, area.w / 6))
+        value_box = Box(0, y, area.w - 2 * bw - 2 * GAP_X, row_h)
+        for value, label, x in (("minus", "\u2212", -(area.w - bw) / 2),
+                                ("plus", "+", (area.w - bw) / 2)):
+            cell = layout_grid([(label, None)], Box(x, y, bw, row_h), s, 0.1)[0]
+            cell.value = value
+            screen.cells.append(cell)
+        screen.labels.append(text_block(typed or "_", value_box, s, min(0.12, row_h * 0.6),
+                                        "value"))
+        ok_y = y - row_h / 2 - 0.01 - line / 2
+        ok = layout_grid([("OK (Enter)", None)], Box(0, ok_y, min(area.w, max(0.5, 8 * s)),
+                                                     line), s, s)[0]
+        ok.value = "ok"
+        screen.cells.append(ok)
+        if range_h:
+            screen.labels.append(text_block(f"from {q.minimum} to {q.maximum}",
+                                            Box(0, ok_y - line / 2 - 0.01 - range_h / 2, area.w,
+                                                range_h), s, s, "range"))
 
-        ok.enabled = False
-
-        def draw_value():
-            self._text(state["text"] or "_", 0, 0.05, 0.12)
-            self._text(f"from {minimum} to {maximum}", 0, -0.09, 0.035)
-
-        return self._question("number", prompt, [minus, plus, ok], on_input, replay,
-                              replays_allowed, extra=draw_value)
+    def _message_screen(self, name: str, text: str, hint: str = "") -> None:
+        win = self.open()
+        a, s = self.aspect, self.smallest
+        screen = Screen(name)
+        line = s * (LAYOUT_LINE + 2 * LAYOUT_PAD)
+        hint_h = 2 * line if hint else 0.0
+        screen.labels.append(text_block(text, Box(0, (hint_h + 0.02) / 2, a - 0.06,
+                                                  1 - 0.06 - hint_h), s, max(s, 0.05)))
+        if hint:
+            screen.labels.append(text_block(hint, Box(0, -0.5 + 0.02 + hint_h / 2, a - 0.06,
+                                                      hint_h), s, s * 1.2, "hint"))
+        self._enter(name, screen)
 
     # -- the loop behind every screen -----------------------------------------------
 
-    def _question(self, name, prompt, buttons, keys, replay, replays_allowed, *,
-                  notes=(), show_keys=True, extra=None) -> Response:
+    def _ask(self, q, replay: Replay | None, trial: Trial | None) -> Response:
         win = self.open()
-        left = replays_allowed if replay is not None else 0
-        again = Button("Feel it again", "again", 0, -0.38, 0.5, 0.1, key="R") if left else None
+        practice = bool(trial is not None and getattr(trial, "practice", False))
+        left = q.replays if replay is not None else 0
         used = 0
+        state = {"typed": "", "sign": "", "status": ""}
+        ak = answer_keys(q)
 
-        def draw():
-            self._text(prompt, 0, 0.36, 0.06, wrap=win.size[0] / win.size[1] - 0.15)
-            for b in buttons:
-                self._button(b, show_key=show_keys)
-            for text, x, y in notes:
-                self._text(text, x, y, 0.035, wrap=0.3)
-            if extra:
-                extra()
-            if again:
-                again.label = f"Feel it again ({left - used} left)" if left - used else \
-                    "No replays left"
-                again.enabled = used < left
-                self._button(again, show_key=True)
+        def show(answered=None, status="", entering=False):
+            screen = self.question_screen(q, practice=practice,
+                                          replays_left=(left - used) if left else None,
+                                          answered=answered, typed=state["sign"] + state["typed"],
+                                          status=status)
+            self._enter(q.kind, screen, keep_input=not entering, chosen=answered)
+            for b in self.buttons:
+                if b.value == "again":
+                    b.enabled = used < left
 
-        all_buttons = buttons + ([again] if again else [])
-        self._enter(name, draw, all_buttons)
-        rt_reset = True
+        def speak_question():
+            if self.speech is not None:
+                extra = [self.speech.phrase("replay", left=left - used)] if used < left else []
+                self._say(*self.question_sentences(q), *extra)
+
+        show(entering=True)
+        speak_question()
+        win.callOnFlip(self.clock.reset)        # the time origin: the flip that shows it
         while True:
-            if rt_reset:
-                # The time origin is the flip that (first) shows the question.
-                win.callOnFlip(self.clock.reset)
-                rt_reset = False
             for key, t, button in self._frame():
-                if again is not None and again.enabled and (button is again or key == "r"):
+                value = button.value if button is not None else None
+                if value == "again" or (key == REPLAY_KEY and left):
+                    if used >= left:
+                        self._say(self.speech.phrase("no_replays") if self.speech else "")
+                        continue
                     used += 1
-                    self._show_ready()
+                    self._show_ready(trial)
+                    if self.speech is not None:
+                        self._say(self.speech.phrase("ready"), wait=True)
+                        self.speech.start_noise()
                     replay()
-                    self._enter(name, draw, all_buttons)
+                    show(entering=True)
+                    speak_question()
+                    win.callOnFlip(self.clock.reset)
                     break
-                if callable(keys):                   # a screen with its own input rules
-                    v = keys(key, button)
-                else:
-                    v = button.value if button is not None and button in buttons else \
-                        keys.get(key)
-                if v is not None:
-                    return Response(answer=str(v), rt_s=round(t, 4), replays=used)
+                if value == "repeat" or key == REPEAT_KEY:
+                    speak_question()
+                    continue
+                answer = self._answer_from(q, ak, key, value, state)
+                if answer is None:
+                    if state["status"]:
+                        show(status=state["status"])
+                    continue
+                rt = round(t, 4)
+                self._confirm(q, answer, show)
+                return Response(answer=str(answer), rt_s=rt, replays=used)
 
-    def _wait_to_continue(self, name: str, text: str, hint: str, abort: bool = True) -> None:
-        win = self.open()
+    def _answer_from(self, q, ak: AnswerKeys, key, value, state) -> str | None:
+        """The answer a key or click gives, or None (typed input kept in ``state``)."""
+        state["status"] = ""
+        if value is not None and value not in ("minus", "plus", "ok"):
+            return str(value)
+        if q.kind == "number" or ak.typed:
+            return self._typed(q, key, value, state)
+        if key is None:
+            return None
+        if ak.signed and key in MINUS_KEYS[:2]:
+            state["sign"] = "-"
+            state["status"] = "\u2212 …"
+            self._say(self.speech.phrase("minus") if self.speech else "")
+            return None
+        k = key[4:] if key.startswith("num_") and key[4:].isdigit() else key
+        if state["sign"] and k.isdigit():
+            k = "-" + k
+        state["sign"] = ""
+        if k in ak.keys:
+            return ak.keys[k]
+        if key not in ("lshift", "rshift", "capslock", "lctrl", "rctrl"):
+            self._say(self.speech.phrase("not_a_key") if self.speech else "")
+        return None
 
-        def draw():
-            self._text(text, 0, 0.08, 0.05, wrap=win.size[0] / win.size[1] - 0.2)
-            self._text(hint, 0, -0.4, 0.035, color=HOVER_LINE)
+    def _typed(self, q, key, value, state) -> str | None:
+        lo = q.minimum if q.kind == "number" else q.low
+        hi = q.maximum if q.kind == "number" else q.high
+        text = state["sign"] + state["typed"]
+        current = int(text) if text.lstrip("-") else None
 
-        self._enter(name, draw, [])
+        def set_value(v):
+            v = max(lo, min(hi, v))
+            state["sign"], state["typed"] = ("-" if v < 0 else ""), str(abs(v))
+            self._say(str(v))
+
+        if key in DIGIT_KEYS:
+            cand = state["typed"] + str(DIGIT_KEYS[key])
+            v = int(state["sign"] + cand)
+            if v > hi:
+                state["status"] = f"{hi} is the largest"
+                self._say(self.speech.phrase("too_large", maximum=hi) if self.speech else "")
+            else:
+                state["typed"] = cand.lstrip("0") or "0"
+                self._say(str(DIGIT_KEYS[key]))
+        elif key == "backspace":
+            state["typed"] = state["typed"][:-1]
+            if not state["typed"]:
+                state["sign"] = ""
+        elif (key in ("minus", "num_subtract") and lo < 0 and not state["typed"]):
+            state["sign"] = "-"
+            self._say(self.speech.phrase("minus") if self.speech else "")
+        elif key in MINUS_KEYS or value == "minus":
+            set_value((current if current is not None else lo + 1) - 1)
+        elif key in PLUS_KEYS or value == "plus":
+            set_value((current if current is not None else lo - 1) + 1)
+        elif key in ENTER_KEYS or value == "ok":
+            if current is None:
+                return None
+            if current < lo:
+                state["status"] = f"{lo} is the smallest"
+                self._say(self.speech.phrase("too_small", minimum=lo) if self.speech else "")
+                return None
+            return str(current)
+        state["status"] = state["status"] or "\u00a0"     # redraw with the typed value
+        return None
+
+    def _confirm(self, q, answer: str, show) -> None:
+        """The answer is shown taken (its button filled) and said back, before moving on."""
+        show(answered=answer)
+        if self.speech is not None:
+            self._say(self.speech.phrase("answer_taken", answer=self.spoken_answer(q, answer)))
+        until = self._core.getTime() + CONFIRM_S
+        while self._core.getTime() < until or (self.speech is not None and self.speech.busy()):
+            self._frame(collect=False)
+
+    def _wait_to_continue(self, name: str, text: str, hint: str, abort: bool = True,
+                          spoken: Sequence[str] = (), listen_while_speaking: bool = True) -> None:
+        self._message_screen(name, text, hint)
+        if self.speech is not None and spoken:
+            self._say(*spoken)
+            if not listen_while_speaking:       # the end: said in full before it closes
+                while self.speech.busy():
+                    self._frame(abort=abort, collect=False)
         while True:
             for key, _, _button in self._frame(abort=abort, click_anywhere=True):
+                if key == REPEAT_KEY and self.speech is not None:
+                    self._say(*spoken)
+                    continue
                 if key in CONTINUE_KEYS or key == "click" or (not abort and
                                                               key == self.options.abort_key):
+                    if self.speech is not None:
+                        self.speech.stop()
                     return
 
-    def _show_ready(self) -> None:
-        win = self.open()
-
-        def draw():
-            self._text("Ready", 0, 0.25, 0.07)
-            self._stim(("cross",), lambda: self._visual.ShapeStim(
-                win, vertices="cross", size=0.12, lineWidth=0, fillColor=TEXT,
-                colorSpace="rgb")).draw()
-            self._text("Feel the stimulus", 0, -0.25, 0.06)
-
-        self._enter("ready", draw, [])
+    def _show_ready(self, trial: Trial | None = None) -> None:
+        self.open()
+        a, s = self.aspect, self.smallest
+        screen = Screen("ready")
+        line = s * (LAYOUT_LINE + 2 * LAYOUT_PAD)
+        if trial is not None and trial.practice:
+            screen.labels.append(text_block("PRACTICE (does not count)",
+                                            Box(0, 0.5 - 0.02 - line / 2, a - 0.06, line), s,
+                                            s * 1.2, "banner"))
+        screen.labels.append(text_block("Ready", Box(0, 0.25, a - 0.06, 0.14), s, 0.07))
+        screen.labels.append(text_block("Feel the stimulus", Box(0, -0.25, a - 0.06, 0.14), s,
+                                        0.06))
+        self._enter("ready", screen, cross=True)
         self._frame()           # shown now; Escape pressed before it aborts here
 
-    def _enter(self, name: str, draw: Callable[[], None], buttons: list[Button]) -> None:
+    def _enter(self, name: str, screen: Screen, keep_input: bool = False, cross: bool = False,
+               chosen=None) -> None:
         """Make ``name`` the screen on show; forget input meant for the one before,
         except the abort key (pressed between two trials, it aborts here)."""
-        self.screen, self._draw, self.buttons = name, draw, buttons
+        buttons = []
+        for c in screen.cells:
+            b = c.box
+            buttons.append(Button(c.label.text, getattr(c, "value", None), b.x, b.y, b.w, b.h,
+                                  key=c.key.text if c.key else None, cell=c))
+        entering = not keep_input
+        self.screen, self.layout, self.buttons = name, screen, buttons
+        win = self.win
+
+        def draw():
+            for b in self.buttons:
+                self._button(b, chosen=chosen is not None and str(b.value) == str(chosen))
+            for lb in screen.labels:
+                self._label(lb)
+            if cross:
+                self._stim(("cross",), lambda: self._visual.ShapeStim(
+                    win, vertices="cross", size=0.12, lineWidth=0, fillColor=TEXT,
+                    colorSpace="rgb")).draw()
+        self._draw = draw
+        if not entering:
+            return
+        self.entered.append(name)
         key = self.options.abort_key
         if self._event.getKeys(keyList=[key]):
             self.close()
             raise SessionAborted(f"the {key} key was pressed in the participant window")
         self._event.clearEvents()
         self._was_pressed = bool(self._mouse.getPressed()[0])
+        self._mouse_at_entry = tuple(self._mouse.getPos())
 
-    def _frame(self, abort: bool = True, click_anywhere: bool = False):
+    def _frame(self, abort: bool = True, click_anywhere: bool = False, collect: bool = True):
         """Draw and flip the screen; return its input as (key, time, button) tuples."""
+        if self.speech is not None:
+            self.speech.update()
         self._draw()
         self.win.flip()
         got = []
+        if not collect:         # keys wait for the next screen (the abort key aborts there)
+            return got
         for key, t in self._event.getKeys(timeStamped=self.clock):
             if abort and key == self.options.abort_key:
                 self.close()
@@ -467,42 +916,72 @@ class WindowResponder:
             colorSpace="rgb", font="DejaVu Sans", alignText="center",
             anchorHoriz="center")).draw()
 
-    def _button(self, b: Button, show_key: bool = True):
-        hover = b.enabled and self._mouse is not None and b.contains(self._mouse.getPos())
-        fill = BUTTON_FILL if b.enabled else BACKGROUND
-        line = (HOVER_LINE if hover else BUTTON_LINE) if b.enabled else DISABLED
+    def _label(self, lb: Label, color=None) -> None:
+        color = color or {"hint": HOVER_LINE, "key": HOVER_LINE, "banner": HOVER_LINE,
+                          "status": HOVER_LINE}.get(lb.role, TEXT)
+        # The lines are broken already; the wrap width only keeps PsychoPy from breaking them.
+        self._text(lb.text, lb.box.x, lb.box.y, lb.height, wrap=self.aspect * 2, color=color)
+
+    def _button(self, b: Button, chosen: bool = False):
+        moved = self._mouse is not None and self._mouse_at_entry is not None and \
+            tuple(self._mouse.getPos()) != self._mouse_at_entry
+        hover = b.enabled and moved and b.contains(self._mouse.getPos())
+        fill = (CHOSEN_FILL if chosen else BUTTON_FILL) if b.enabled else BACKGROUND
+        line = (HOVER_LINE if hover or chosen else BUTTON_LINE) if b.enabled else DISABLED
         self._stim(("rect", b.x, b.y, b.w, b.h, fill, line), lambda: self._visual.Rect(
-            self.win, width=b.w, height=b.h, pos=(b.x, b.y), lineWidth=6, fillColor=fill,
+            self.win, width=b.w, height=b.h, pos=(b.x, b.y), lineWidth=4, fillColor=fill,
             lineColor=line, colorSpace="rgb")).draw()
-        color = TEXT if b.enabled else DISABLED
-        self._text(b.label, b.x, b.y, min(0.06, b.h * 0.4), wrap=b.w * 0.95, color=color)
-        if show_key and b.key and b.enabled:
-            self._text(f"key {b.key}", b.x + b.w / 2 - 0.06, b.y - b.h / 2 + 0.02, 0.025,
-                       color=HOVER_LINE)
+        color = (CHOSEN_TEXT if chosen else TEXT) if b.enabled else DISABLED
+        self._label(b.cell.label, color=color)
+        if b.cell.key is not None and b.enabled:
+            self._label(b.cell.key, color=CHOSEN_TEXT if chosen else HOVER_LINE)
 
 
-def _choice(r: WindowResponder, q, replay):
-    return r.ask_choice(q.prompt, q.options, replay, q.replays)
+def rating_label(value) -> str:
+    try:
+        v = int(str(value))
+    except ValueError:
+        return str(value)
+    return f"+{v}" if v > 0 else (f"\u2212{abs(v)}" if v < 0 else str(v))
 
 
-def _rating(r: WindowResponder, q, replay):     # vtexp.experiment.RatingQuestion
-    return r.ask_rating(q.prompt, q.scale, dict(getattr(q, "labels", {}) or {}), replay,
-                        getattr(q, "replays", 0))
+CHOSEN_FILL = (1.0, 1.0, -1.0)        # the answer taken: yellow, black text
+CHOSEN_TEXT = (-1.0, -1.0, -1.0)
+CONFIRM_S = 0.6                       # how long the answer taken is shown, at least
+GAP_X = 0.025
 
 
-def _number(r: WindowResponder, q, replay):     # vtexp.experiment.NumberQuestion
-    return r.ask_number(q.prompt, getattr(q, "minimum", 0), getattr(q, "maximum", 99), replay,
-                        getattr(q, "replays", 0))
+def _choice(r: WindowResponder, q, replay, trial=None):
+    return r._ask(q, replay, trial)
+
+
+def _rating(r: WindowResponder, q, replay, trial=None):     # vtexp.experiment.RatingQuestion
+    from types import SimpleNamespace
+    scale = list(q.scale)
+    q = SimpleNamespace(kind="rating", name=getattr(q, "name", "rating"), prompt=q.prompt,
+                        scale=scale, low=min(scale), high=max(scale),
+                        labels=dict(getattr(q, "labels", {}) or {}),
+                        options=[str(v) for v in scale], replays=getattr(q, "replays", 0))
+    return r._ask(q, replay, trial)
+
+
+def _number(r: WindowResponder, q, replay, trial=None):     # vtexp.experiment.NumberQuestion
+    from types import SimpleNamespace
+    lo, hi = getattr(q, "minimum", 0), getattr(q, "maximum", 99)
+    q = SimpleNamespace(kind="number", name=getattr(q, "name", "count"), prompt=q.prompt,
+                        minimum=lo, maximum=hi, replays=getattr(q, "replays", 0),
+                        options=[str(v) for v in range(lo, min(hi, lo + 200) + 1)])
+    return r._ask(q, replay, trial)
 
 
 # Question kind (the model's ``kind`` field, else its class name) -> the screen that asks it.
-QUESTION_SCREENS: dict[str, Callable[[WindowResponder, object, Replay | None], Response]] = {
+QUESTION_SCREENS: dict[str, Callable[..., Response]] = {
     "ChoiceQuestion": _choice, "choice": _choice,
     "RatingQuestion": _rating, "rating": _rating,
     "NumberQuestion": _number, "number": _number,
 }
 
 
-def make_window(spec: str) -> WindowResponder:
+def make_window(spec: str, lx=None) -> WindowResponder:
     """Build the window responder from the part of ``--responder`` after ``window:``."""
-    return WindowResponder(WindowOptions.parse(spec))
+    return WindowResponder(WindowOptions.parse(spec), lx=lx)
