@@ -108,10 +108,11 @@ def test_mixed_logit_refuses_non_binary_outcomes():
 def test_p_adjust_equals_statsmodels():
     from statsmodels.stats.multitest import multipletests
     p = np.array([0.01, 0.04, 0.03, 0.2, 0.005, 0.5])
-    for ours, theirs in (("holm", "holm"), ("bonferroni", "bonferroni")):
+    for ours, theirs in (("holm", "holm"), ("bonferroni", "bonferroni"), ("BH", "fdr_bh"),
+                         ("fdr", "fdr_bh"), ("sidak", "sidak")):
         assert np.allclose(p_adjust(p, ours), multipletests(p, method=theirs)[1])
     with pytest.raises(InputError, match="holm"):
-        p_adjust(p, "fdr")
+        p_adjust(p, "hommel")
 
 
 def _simulate(n_sets, n=15, seed=0):
