@@ -75,7 +75,7 @@ def test_analyze_a_mix_of_folders_writes_a_self_contained_report(cli, data, tmp_
     assert len(pd.read_csv(rep / "posthoc_1.csv")) == 28         # 8 timings: 28 pairs
     it = pd.read_csv(rep / "information_transfer.csv")
     assert len(it) == 8 and (it["bias_bits"] > 0).all()
-    assert "Mixed-effects logistic regression" in html and "fit_vb" in html
+    assert "Mixed-effects logistic regression" in html and "Laplace approximation" in html
 
 
 def test_checksum_mismatch_is_reported_prominently_or_refused(cli, data, tmp_path):

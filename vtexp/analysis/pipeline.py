@@ -307,16 +307,20 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
         T["information_transfer_all"] = information_transfer(sub, labels=labels)
         T["agreement_all"] = agreement(sub, labels=labels)
     if spec.mixed_model is not None and scored:
-        from .glmm import mixed_logit
+        from .glmm import MixedModelWarning, mixed_logit
         mf = spec.mixed_model.factors or factors
         try:
-            g = mixed_logit(sub, mf, interactions=spec.mixed_model.interactions)
+            with warnings.catch_warnings(record=True) as w:
+                warnings.simplefilter("always", MixedModelWarning)
+                g = mixed_logit(sub, mf, interactions=spec.mixed_model.interactions,
+                                items=spec.mixed_model.items, n_quad=spec.mixed_model.n_quad)
             T["mixed_model"] = g
             notes.append(f"Mixed logistic model: {g.attrs['formula']}; {g.attrs['method']}; "
-                         f"priors {g.attrs['priors']}; reference levels "
+                         "Wald z tests and 95 % intervals; reference levels "
                          + ", ".join(f"{k} = {v}" for k, v in g.attrs["reference_levels"].items())
                          + f"; {g.attrs['n_trials']} trials of {g.attrs['n_participants']} "
                          "participants.")
+            res.warnings.extend(str(x.message) for x in w)
         except (InputError, np.linalg.LinAlgError, ValueError) as e:
             notes.append(f"the mixed logistic model could not be fitted: {e}")
     for w in caught:

@@ -96,6 +96,12 @@ class MixedModelSpec(Model):
 
     factors: list[str] | None = None
     interactions: bool = False
+    items: str | None = Field(None, description="a factor whose levels are the stimulus items "
+                                                "(e.g. the letter), for a crossed random "
+                                                "intercept per item")
+    n_quad: int = Field(1, ge=1, le=50, description="1 = Laplace (glmer's default); more = "
+                                                    "adaptive Gauss–Hermite quadrature nodes "
+                                                    "(only without items)")
 
 
 class FigureSpec(Model):
@@ -154,6 +160,8 @@ class AnalysisSpec(Model):
             refs += [(f"ordinal[{i}].where", f) for f in o.where]
         if self.mixed_model:
             refs += [("mixed_model.factors", f) for f in self.mixed_model.factors or []]
+            refs += [("mixed_model.items", self.mixed_model.items)] if self.mixed_model.items \
+                else []
         if self.figure:
             refs += [("figure.x", self.figure.x)]
             refs += [("figure.trace", self.figure.trace)] if self.figure.trace else []
