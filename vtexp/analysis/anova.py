@@ -634,6 +634,30 @@ def _mixed_table(d: WithinDesign, observed: list[str]) -> pd.DataFrame:
     return t[COLUMNS]
 
 
+def _rounding_to_zero(t: pd.DataFrame, scale: float) -> None:
+    """Sums of squares that are rounding noise (< 1e-12 of Σy²) are 0, and what follows.
+
+    A measure that does not vary gives SS = 1e-31 rather than 0; its F would be
+    a number made of rounding. With the zeros exact, F is NaN (0/0: not
+    applicable) or infinite (no error variance), and the report says so.
+    """
+    tiny = 1e-12 * max(scale, np.finfo(float).tiny)
+    for col in ("SS", "SS_error"):
+        t.loc[t[col].abs() < tiny, col] = 0.0
+    zero_err = t["SS_error"] == 0
+    if zero_err.any():
+        with np.errstate(divide="ignore", invalid="ignore"):
+            F = (t["SS"] / t["df1"]) / (t["SS_error"] / t["df2"])
+            t.loc[zero_err, "F"] = F[zero_err]
+            t.loc[zero_err, "MSE"] = 0.0
+            t.loc[zero_err, "pes"] = (t["SS"] / (t["SS"] + t["SS_error"]))[zero_err]
+        for c in ("p", "p_gg", "p_hf"):
+            t.loc[zero_err, c] = np.where(np.isnan(t.loc[zero_err, "F"]), np.nan, 0.0)
+        for c in ("eps_gg", "eps_hf", "mauchly_W", "mauchly_p"):
+            t.loc[zero_err & (t["df1"] > 1), c] = np.nan
+        t.loc[zero_err & (t["SS"] == 0), "ges"] = np.nan
+
+
 def rm_anova(data: pd.DataFrame, dv: str, within: list[str] | str | None, subject: str, *,
              between: list[str] | str | None = None, observed: list[str] | str | None = None,
              missing: str = "drop") -> pd.DataFrame:
@@ -689,6 +713,7 @@ def rm_anova(data: pd.DataFrame, dv: str, within: list[str] | str | None, subjec
     else:
         res = anova_arrays(d.values, d.shape)
         t = _table(res, d.factors, len(d.subjects))
+    _rounding_to_zero(t, float((d.values ** 2).sum()))
     t.attrs.update(dropped=list(d.dropped), dv=dv, subject=subject, aggregated=d.aggregated,
                    levels=dict(zip(d.between + d.factors, d.between_levels + d.levels)),
                    between=list(d.between), observed=observed,

@@ -87,7 +87,7 @@ def _fixed(x: float, digits: int = 2) -> str:
     """Round half up on the shortest decimal form (28.775 -> 28.78), as people round."""
     from decimal import ROUND_HALF_UP, Decimal
     if x != x or x in (float("inf"), float("-inf")):
-        return str(x)
+        return "n/a"
     return str(Decimal(repr(float(x))).quantize(Decimal(1).scaleb(-digits), ROUND_HALF_UP))
 
 
@@ -98,6 +98,8 @@ def _num2(x: float) -> str:
 
 
 def _df(x: float) -> str:
+    if not np.isfinite(x):
+        return "n/a"
     return f"{x:.0f}" if abs(x - round(x)) < 1e-9 else _fixed(x, 2)
 
 
@@ -110,6 +112,11 @@ def apa_anova(row: pd.Series, correction: str = "auto") -> tuple[str, str]:
     ``auto`` applies Greenhouse–Geisser when Mauchly's p < .05, or when the
     test is undefined (fewer participants than the effect's df + 1).
     """
+    if not np.isfinite(row["F"]):
+        why = ("the measure does not vary across these cells (effect and error sums of "
+               "squares are 0)" if row["F"] != row["F"] else
+               "the error sum of squares is 0 (every participant shows the same effect)")
+        return f"F not applicable: {why}", "none"
     used = correction
     if correction == "auto":
         used = "GG" if (row["df1"] > 1 and not row["mauchly_p"] >= 0.05) else "none"
