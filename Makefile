@@ -29,11 +29,14 @@ $(VENV)/.test: $(VENV)/.core
 # root (CI), what is missing is installed; elsewhere the command to run is printed.
 GUI_DEBS := xvfb libgl1-mesa-dri libglu1-mesa libxxf86vm1 libxinerama1 libxi6 libxrandr2 \
             libxcursor1 fontconfig fonts-dejavu-core
+# The report tests lay every report out in headless Chromium and check that no text
+# overlaps another (tests/report_render.py).
+REPORT_DEBS := chromium
 
 system-packages:
 	@command -v dpkg-query >/dev/null || { command -v Xvfb >/dev/null || \
 	  echo "the window tests need Xvfb and Mesa OpenGL; install them with your package manager" >&2; exit 0; }; \
-	missing=$$(for p in $(GUI_DEBS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null \
+	missing=$$(for p in $(GUI_DEBS) $(REPORT_DEBS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null \
 	  | grep -q 'install ok installed' || echo $$p; done | tr '\n' ' '); \
 	if [ -z "$$missing" ]; then exit 0; fi; \
 	if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \

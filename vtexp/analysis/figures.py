@@ -21,7 +21,40 @@ def _plt():
     return plt
 
 
+#: the overlapping text pairs of the last figure drawn (:func:`text_overlaps`), for tests
+last_overlaps: list[tuple[str, str]] = []
+
+
+def text_overlaps(fig) -> list[tuple[str, str]]:
+    """Pairs of visible, non-empty texts of ``fig`` whose boxes intersect.
+
+    Titles, axis and tick labels, legend entries and cell values are all
+    matplotlib ``Text`` artists; their boxes come from the renderer, so this is
+    what the PNG shows.
+    """
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    from matplotlib.text import Text
+    boxes = []
+    for t in fig.findobj(Text):
+        if not t.get_visible() or not t.get_text().strip() or t.get_alpha() == 0:
+            continue
+        try:
+            bb = t.get_window_extent(r)
+        except Exception:                    # pragma: no cover - artists without a renderer
+            continue
+        if bb.width > 0 and bb.height > 0:
+            boxes.append((t.get_text(), bb.shrunk(0.92, 0.92)))
+    out = []
+    for i in range(len(boxes)):
+        for j in range(i + 1, len(boxes)):
+            if boxes[i][1].overlaps(boxes[j][1]):
+                out.append((boxes[i][0], boxes[j][0]))
+    return out
+
+
 def _png(fig) -> bytes:
+    last_overlaps[:] = text_overlaps(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     _plt().close(fig)
@@ -67,65 +100,91 @@ def rate_by_condition(measures: pd.DataFrame, dv: str, x: str, trace: str | None
     return _png(fig)
 
 
-def per_participant_lines(measures: pd.DataFrame, dv: str, x: str, ylabel: str) -> bytes:
+def per_participant_lines(measures: pd.DataFrame, dv: str, x: str, ylabel: str, *,
+                          trace: str | None = None) -> bytes:
     """One line per participant across the levels of ``x`` (seed 000 Figs. 12–13).
 
-    Each participant's value at a level is their mean over the other factors;
-    the bold line is the mean of the participants.
+    With ``trace``, one panel per level of it: averaging over a factor whose
+    levels pull the measure in opposite directions (circle rated +2, rectangle
+    −2) would draw a flat line that no participant gave. Each participant's
+    value at a level is their mean over the remaining factors; the bold line
+    is the mean of the participants.
     """
     plt = _plt()
-    per = measures.groupby(["participant", x], observed=True)[dv].mean().reset_index()
     xs = [str(v) for v in measures[x].cat.categories] if hasattr(measures[x], "cat") else \
         sorted(measures[x].astype(str).unique())
     pos = {v: i for i, v in enumerate(xs)}
-    fig, ax = plt.subplots(figsize=(7, 4))
+    panels = [(None, measures)] if not trace else \
+        [(k, g) for k, g in measures.groupby(trace, observed=True, sort=True)]
+    fig, axes = plt.subplots(1, len(panels), figsize=(max(7.0, 4.2 * len(panels)), 4),
+                             squeeze=False, sharey=True)
     cmap = plt.get_cmap("tab20")
-    for k, (p, s) in enumerate(per.groupby("participant", observed=True)):
-        ax.plot([pos[str(v)] for v in s[x]], s[dv], marker=".", linewidth=1, alpha=0.8,
-                color=cmap(k % 20), label=f"sub-{p}")
-    mean = per.groupby(x, observed=True)[dv].mean()
-    ax.plot([pos[str(v)] for v in mean.index], mean.to_numpy(), color="black", linewidth=3,
-            label="mean")
-    ax.set_xticks(range(len(xs)), xs, rotation=30 if len(xs) > 5 else 0)
-    ax.set_xlabel(x)
-    ax.set_ylabel(ylabel)
-    _percent(ax, dv)
-    ax.legend(fontsize=7, ncol=2, bbox_to_anchor=(1.02, 1), loc="upper left")
-    ax.grid(axis="y", alpha=0.3)
+    for ax, (name, sub) in zip(axes[0], panels):
+        per = sub.groupby(["participant", x], observed=True)[dv].mean().reset_index()
+        for k, (p, s) in enumerate(per.groupby("participant", observed=True)):
+            ax.plot([pos[str(v)] for v in s[x]], s[dv], marker=".", linewidth=1, alpha=0.8,
+                    color=cmap(k % 20), label=f"sub-{p}")
+        mean = per.groupby(x, observed=True)[dv].mean()
+        ax.plot([pos[str(v)] for v in mean.index], mean.to_numpy(), color="black",
+                linewidth=3, label="mean")
+        ax.set_xticks(range(len(xs)), xs, rotation=30 if len(xs) > 5 else 0)
+        ax.set_xlabel(x)
+        if name is not None:
+            ax.set_title(f"{trace} {name}", fontsize=9)
+        _percent(ax, dv)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0][0].set_ylabel(ylabel)
+    axes[0][-1].legend(fontsize=7, ncol=2, bbox_to_anchor=(1.02, 1), loc="upper left")
     return _png(fig)
 
 
 def confusion_heatmaps(confusion: pd.DataFrame, by: list[str]) -> bytes:
-    """Row-normalised confusion matrices, one panel per condition, proportions printed."""
+    """Row-normalised confusion matrices, one panel per condition, proportions printed.
+
+    The panel grows with the number of categories (about 0.3 inch a row, so a
+    26 × 26 letter matrix is readable), panels per row shrink accordingly, and
+    titles are wrapped to the panel's width so that neighbours do not overlap.
+    """
+    import textwrap
+
     plt = _plt()
     groups = [((), confusion)] if not by else list(confusion.groupby(by, observed=True))
     n = len(groups)
-    cols = min(4, n)
+    k = confusion["stimulus"].nunique() if "stimulus" in confusion else 4
+    side = max(3.0, 0.32 * k)                     # inches per panel
+    cols = max(1, min(4, n, int(14 // side)))
     rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols + 1.2, 3.1 * rows), squeeze=False)
-    fig.subplots_adjust(hspace=0.55, wspace=0.08)
+    fontsize = 7 if k <= 12 else 5.5
+    fig, axes = plt.subplots(rows, cols, figsize=(side * cols + 1.6, (side + 0.9) * rows),
+                             squeeze=False)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
-    for k, (ax, (key, g)) in enumerate(zip(axes.ravel(), groups)):
-        first_col, bottom = k % cols == 0, k + cols >= n
+    for i, (ax, (key, g)) in enumerate(zip(axes.ravel(), groups)):
+        first_col, bottom = i % cols == 0, i + cols >= n
         m = g.pivot_table(index="stimulus", columns="response", values="proportion",
                           observed=False, dropna=False)
         im = ax.imshow(m.to_numpy(dtype=float), vmin=0, vmax=1, cmap="Blues")
         labels = [str(v) for v in m.columns]
-        ax.set_xticks(range(len(labels)), labels, rotation=45, ha="right", fontsize=7)
+        ax.set_xticks(range(len(labels)), labels, rotation=45 if k <= 12 else 90,
+                      ha="right" if k <= 12 else "center", fontsize=fontsize)
         ax.set_yticks(range(len(m.index)), [str(v) for v in m.index] if first_col else [],
-                      fontsize=7)
-        for i in range(m.shape[0]):
-            for j in range(m.shape[1]):
-                v = m.iat[i, j]
-                if v == v:
-                    ax.text(j, i, f"{v * 100:.0f}", ha="center", va="center", fontsize=7,
+                      fontsize=fontsize)
+        for a in range(m.shape[0]):
+            for b in range(m.shape[1]):
+                v = m.iat[a, b]
+                if v == v and (k <= 12 or v >= 0.005):
+                    ax.text(b, a, f"{v * 100:.0f}", ha="center", va="center",
+                            fontsize=fontsize - (1 if k > 12 else 0),
                             color="white" if v > 0.6 else "black")
         key = key if isinstance(key, tuple) else (key,)
-        ax.set_title(", ".join(f"{f} {v}" for f, v in zip(by, key)) or "all trials", fontsize=9)
+        title = ", ".join(f"{f} {v}" for f, v in zip(by, key)) or "all trials"
+        ax.set_title("\n".join(textwrap.wrap(title, width=max(12, int(side * 9)))),
+                     fontsize=9)
         if bottom:
             ax.set_xlabel("response", fontsize=8)
         if first_col:
             ax.set_ylabel("stimulus", fontsize=8)
-    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.6, label="proportion of the row")
+    fig.tight_layout(rect=(0, 0, 0.9, 1))
+    cax = fig.add_axes((0.92, 0.25, 0.02, 0.5))
+    fig.colorbar(im, cax=cax, label="proportion of the row")
     return _png(fig)

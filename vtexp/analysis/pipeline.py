@@ -168,9 +168,12 @@ def spec_for(sessions: list[SessionData], experiment: str, override: AnalysisSpe
 def _session_table(sessions: list[SessionData]) -> pd.DataFrame:
     rows = []
     for s in sessions:
+        # a trial with two questions is two rows of the log; count trials, not rows
+        n_trials = int(s.trials["trial"].nunique()) if "trial" in s.trials.columns \
+            else len(s.trials)
         rows.append({"participant": str(s.meta.get("participant")),
                      "session": s.meta.get("session"), "status": s.status,
-                     "trials": len(s.trials),
+                     "trials": n_trials,
                      "planned": s.meta.get("n_trials_planned"),
                      "checksum": s.checksum, "folder": str(s.dir)})
     return pd.DataFrame(rows)

@@ -98,13 +98,22 @@ td:first-child, th:first-child { text-align: left; }
 .alarm h2 { color: #c00; margin-top: 0.2em; }
 .note { color: #555; font-size: 0.9em; }
 img { max-width: 100%; }
+.tablewrap { overflow-x: auto; max-width: 100%; }
+td.na { color: #777; font-style: italic; }
 ul.apa li { margin: 0.2em 0; }
 """
 
 
+NOT_APPLICABLE = "n/a"
+
+
 def _cell(v, col: str, percent: bool) -> str:
     if v is None or v is pd.NA or (isinstance(v, float) and np.isnan(v)):
-        return ""
+        # an undefined measure is never a number (the reason is in the table's
+        # not_applicable column or the note under it)
+        return NOT_APPLICABLE
+    if isinstance(v, (float, np.floating)) and np.isinf(v):
+        return NOT_APPLICABLE
     if isinstance(v, (float, np.floating)):
         if percent and col not in ("n_trials", "n_correct", "n_participants", "n"):
             return f"{v * 100:.1f}%"
@@ -132,7 +141,8 @@ def html_table(name: str, df: pd.DataFrame) -> str:
         body.append("<tr>" + "".join(
             f"<td>{html.escape(_cell(v, str(c), percent and str(c) in _rate_cols(df)))}</td>"
             for v, c in zip(row, df.columns)) + "</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+    return (f"<div class='tablewrap'><table><thead><tr>{head}</tr></thead>"
+            f"<tbody>{''.join(body)}</tbody></table></div>")
 
 
 def _rate_cols(df: pd.DataFrame) -> set[str]:
@@ -153,10 +163,10 @@ def md_table(name: str, df: pd.DataFrame) -> str:
 
 _SECTIONS = [
     ("rates_by_condition", "Recognition rate per condition (mean of participants ± SE)"),
-    ("recognition_table", "Recognition rate by {rows} and {columns} (seed 001 Table 1 layout)"),
+    ("recognition_table", "Recognition rate by {rows} and {columns}"),
     ("rates_by_participant", "Recognition rate per participant (all conditions)"),
     ("anova", "Repeated-measures ANOVA"),
-    ("simple_effects", "Simple effects (seed 000 Table 3)"),
+    ("simple_effects", "Simple effects"),
     ("posthoc", "Paired comparisons"),
     ("friedman", "Friedman test"),
     ("wilcoxon", "Wilcoxon signed-rank comparisons"),
@@ -211,11 +221,11 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
         label = MEASURE_LABEL[fs.dv]
         figs.append(("rates", f"{label.capitalize()} by {fs.x}"
                      + (f" and {fs.trace}" if fs.trace else "") + " (mean ± SE across "
-                     "participants; seed 000 Fig. 11)",
+                     "participants)",
                      figures.rate_by_condition(m, fs.dv, fs.x, fs.trace, label)))
         figs.append(("participants", f"{label.capitalize()} by {fs.x}, one line per "
-                     "participant (seed 000 Figs. 12–13)",
-                     figures.per_participant_lines(m, fs.dv, fs.x, label)))
+                     "participant" + (f", one panel per {fs.trace}" if fs.trace else ""),
+                     figures.per_participant_lines(m, fs.dv, fs.x, label, trace=fs.trace)))
     if "confusion" in T:
         figs.append(("confusion", "Confusion matrices (rows: shape presented; columns: "
                      "answer; % of the row)",
@@ -272,6 +282,9 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
     if a.notes:
         h.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in a.notes)
                  + "</ul>")
+    h.append("<p class='note'>n/a: not applicable — the measure is undefined there (the "
+             "reason is in the row's not_applicable column; Mauchly's test and ε need an "
+             "effect with more than one df; dz needs paired values).</p>")
     h.append("<p class='note'>Repeated-measures ANOVA on participants' cell means (afex::aov_ez "
              "conventions: Mauchly's test, Greenhouse–Geisser and Huynh–Feldt ε, partial and "
              "generalised η²). Simple effects: 'separate' = one ANOVA per level with its own "

@@ -1,0 +1,83 @@
+"""Render a report in headless Chromium and measure where its text lands.
+
+Chromium (Debian's ``chromium``, installed by ``make system-packages``) loads a
+copy of the report with a script appended that walks every text node, takes
+the boxes the layout gave it (``Range.getClientRects``) and writes the pairs of
+boxes from different text nodes that intersect into the page; ``--dump-dom``
+prints the page after the script ran. A screenshot can be taken the same way.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync",
+         "--hide-scrollbars"]
+
+SCRIPT = r"""
+<script>
+(function () {
+  const boxes = [];
+  const walker = document.createTreeWalker(document.body, NodeFilter.SHOW_TEXT);
+  let node, id = 0;
+  while ((node = walker.nextNode())) {
+    if (!node.textContent.trim()) continue;
+    const parent = node.parentElement;
+    if (!parent || getComputedStyle(parent).visibility === 'hidden') continue;
+    const range = document.createRange();
+    range.selectNodeContents(node);
+    for (const r of range.getClientRects()) {
+      if (r.width > 0.5 && r.height > 0.5)
+        boxes.push({id: id, text: node.textContent.trim().slice(0, 40),
+                    x0: r.left, y0: r.top, x1: r.right, y1: r.bottom});
+    }
+    id++;
+  }
+  const hits = [];
+  for (let i = 0; i < boxes.length; i++) for (let j = i + 1; j < boxes.length; j++) {
+    const a = boxes[i], b = boxes[j];
+    if (a.id === b.id) continue;
+    const w = Math.min(a.x1, b.x1) - Math.max(a.x0, b.x0);
+    const h = Math.min(a.y1, b.y1) - Math.max(a.y0, b.y0);
+    if (w > 1 && h > 1) hits.push([a.text, b.text]);
+  }
+  const wide = document.documentElement.scrollWidth > window.innerWidth + 1;
+  const pre = document.createElement('pre');
+  pre.id = 'vtexp-layout';
+  pre.textContent = JSON.stringify({boxes: boxes.length, overlaps: hits.slice(0, 50),
+                                    n_overlaps: hits.length, too_wide: wide});
+  document.body.appendChild(pre);
+})();
+</script>
+"""
+
+
+def layout(html: Path, width: int = 1280, height: int = 900) -> dict:
+    """Text boxes and their overlaps in the report as Chromium lays it out."""
+    with tempfile.TemporaryDirectory() as tmp:
+        page = Path(tmp) / "page.html"
+        text = html.read_text(encoding="utf-8")
+        page.write_text(text.replace("</body>", SCRIPT + "</body>"), encoding="utf-8")
+        r = subprocess.run([CHROMIUM, *FLAGS, f"--user-data-dir={tmp}/profile",
+                            f"--window-size={width},{height}", "--virtual-time-budget=5000",
+                            "--dump-dom", page.as_uri()],
+                           capture_output=True, text=True, timeout=120)
+    m = re.search(r'<pre id="vtexp-layout">(.*?)</pre>', r.stdout, re.S)
+    if not m:
+        raise RuntimeError(f"chromium did not lay the page out: {r.stderr[-2000:]}")
+    import html as h
+    return json.loads(h.unescape(m.group(1)))
+
+
+def screenshot(html: Path, png: Path, width: int = 1280, height: int = 2400) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        subprocess.run([CHROMIUM, *FLAGS, f"--user-data-dir={tmp}/profile",
+                        f"--window-size={width},{height}", f"--screenshot={png}",
+                        html.resolve().as_uri()], capture_output=True, timeout=120, check=True)
