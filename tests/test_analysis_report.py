@@ -202,3 +202,25 @@ def test_reanalysis_script_shows_where_the_papers_df_come_from(data, tmp_path):
     assert "C(timing): F(7, 64)" in r.stdout
     assert "timing: F(" in r.stdout and "η²p" in r.stdout
     assert len(pd.read_csv(tmp_path / "t1.csv", index_col=0)) == 8
+
+
+def test_groups_from_the_participants_table_give_a_mixed_anova(cli, data, tmp_path):
+    import shutil as sh
+    root = tmp_path / "grid"
+    sh.copytree(data, root)
+    text = GRID.read_text()
+    head = text.split("\nanalysis:")[0]
+    f = write_experiment(tmp_path, head + "\nanalysis:\n  anova:\n    - {within: [shape], "
+                         "between: [group]}\n  posthoc:\n    - {factor: group, between: "
+                         "[group], within: [shape], error: pooled}\n", name="grid.yaml")
+    r = cli("analyze", str(root), "--experiment", str(f), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and "participants.tsv" in r.stderr and "Traceback" not in r.stderr
+    (root / "participants.tsv").write_text("participant_id\tgroup\nsub-01\tblind\n"
+                                           "sub-02\tblind\nsub-03\tsighted\n")
+    r = cli("analyze", str(root), "--experiment", str(f), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    rep = tmp_path / "out" / "duration_interval_grid"
+    anova = pd.read_csv(rep / "anova_1.csv")
+    assert list(anova["effect"]) == ["group", "shape", "group:shape"]
+    assert (anova["df2"] == anova["df1"] * 1).all()            # 3 participants − 2 groups
+    assert len(pd.read_csv(rep / "posthoc_1.csv")) == 1

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -201,6 +202,44 @@ def _where_text(where: dict) -> str:
     return " (" + ", ".join(parts) + ")"
 
 
+def participants_table(sessions: list[SessionData]):
+    """The participants table (BIDS ``participants.tsv``) of the sessions' dataset, or None.
+
+    Looked for in each session's dataset root (``<root>/sub-*/ses-*``) and the
+    folders above it. Issue 14 part 1 makes vtexp write it; until then a lab can
+    put one there by hand.
+    """
+    from .participants import read_participants
+    seen = set()
+    for s in sessions:
+        for folder in list(Path(s.dir).parents)[1:4]:
+            f = folder / "participants.tsv"
+            if f in seen:
+                continue
+            seen.add(f)
+            if f.is_file():
+                return read_participants(f), f
+    return None, None
+
+
+def _with_groups(trials: pd.DataFrame, sessions: list[SessionData], names: list[str]):
+    """``trials`` with the between factors ``names`` taken from the participants table."""
+    from .participants import join_participants
+    lacking = [n for n in names if n not in trials.columns]
+    if not lacking:
+        return trials
+    table, path = participants_table(sessions)
+    if table is None:
+        raise InputError(f"the analysis names between-participant factor(s) "
+                         f"{', '.join(lacking)}, which come from the participants table "
+                         "(participants.tsv in the data folder), and there is none")
+    missing = [n for n in lacking if n not in table.columns]
+    if missing:
+        raise InputError(f"{path}: no column {', '.join(map(repr, missing))} (its columns: "
+                         f"{', '.join(table.columns)})")
+    return join_participants(trials, table[["participant_id", *lacking]], "participant")
+
+
 def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experiment: str, *,
                        spec: AnalysisSpec | None = None) -> ExperimentAnalysis:
     """Every table of one experiment's report, from its tidy trial table.
@@ -212,14 +251,17 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
     mine = [s for s in sessions if s.meta.get("experiment") == experiment]
     if sub.empty or not mine:
         raise InputError(f"no trials of experiment {experiment!r}")
+    override = spec
     loaded = mine[-1].meta.get("experiment_loaded", {})
     factors = mine[0].factors
     levels = mine[0].levels
     scored = bool(sub["correct"].notna().any())
-    spec, source, notes = spec_for(sessions, experiment, spec, factors, scored)
+    spec, source, notes = spec_for(sessions, experiment, override, factors, scored)
     problems = spec.unknown_factors(factors)
     if problems:
         raise InputError(problems[0] + f" ({source})")
+    if spec.between_factors():
+        sub = _with_groups(sub, mine, spec.between_factors())
     res = ExperimentAnalysis(
         experiment=experiment, title=loaded.get("title", experiment),
         reference=loaded.get("reference", ""), factors=factors, levels=levels, spec=spec,
@@ -255,8 +297,9 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
     else:
         for i, a in enumerate(spec.anova):
             within = a.within or factors
-            m = participant_measures(_subset(sub, a.where), a.dv, within)
-            t = run(rm_anova, m, a.dv, within, "participant")
+            m = participant_measures(_subset(sub, a.where), a.dv, within + a.between)
+            t = run(rm_anova, m, a.dv, within, "participant", between=a.between,
+                    observed=a.observed or None)
             T[f"anova_{i + 1}"] = t
             for _, row in t.iterrows():
                 sentence, used = apa_anova(row, a.correction)
@@ -267,17 +310,17 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
                                 if row["mauchly_p"] == row["mauchly_p"] else
                                 " (Mauchly's test undefined: fewer participants than df + 1)")
                 res.sentences.append(
-                    f"{MEASURE_LABEL[a.dv].capitalize()}, {' × '.join(within)}"
+                    f"{MEASURE_LABEL[a.dv].capitalize()}, {' × '.join(a.between + within)}"
                     f"{_where_text(a.where)}: effect of "
                     f"{row['effect'].replace(':', ' × ')}: {sentence}{row_note}.")
             if a.note:
                 res.sentences.append(f"(The paper: {a.note}.)")
         for i, s in enumerate(spec.simple_effects):
             within = s.within or factors
-            m = participant_measures(_subset(sub, s.where), s.dv, within)
+            m = participant_measures(_subset(sub, s.where), s.dv, within + s.between)
             methods = ["separate", "pooled"] if s.method == "both" else [s.method]
             parts = [run(simple_effects, m, s.dv, within, "participant", effect=s.effect,
-                         by=s.by, method=meth) for meth in methods]
+                         by=s.by, method=meth, between=s.between) for meth in methods]
             t = pd.concat(parts, ignore_index=True)
             T[f"simple_effects_{i + 1}"] = t
             for _, row in t.iterrows():
@@ -290,9 +333,10 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
                     + ".")
         for i, p in enumerate(spec.posthoc):
             within = p.within or factors
-            m = participant_measures(_subset(sub, p.where), p.dv, within)
+            m = participant_measures(_subset(sub, p.where), p.dv, within + p.between)
             T[f"posthoc_{i + 1}"] = run(pairwise_tests, m, p.dv, within, "participant",
-                                        factor=p.factor, by=p.by, padjust=p.padjust)
+                                        factor=p.factor, by=p.by, padjust=p.padjust,
+                                        between=p.between, error=p.error)
         for i, o in enumerate(spec.ordinal):
             m = participant_measures(_subset(sub, o.where), o.dv, [o.factor])
             fr = run(friedman, m, o.dv, o.factor, "participant")

@@ -38,6 +38,11 @@ class AnovaSpec(Model):
     where: dict[str, str | list[str]] = Field(
         default_factory=dict, description="only the trials at these levels, e.g. {display: "
                                           "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
+    between: list[str] = Field(
+        default_factory=list, description="between-participant factors: columns of the "
+                                          "participants table (participants.tsv), e.g. group")
+    observed: list[str] = Field(default_factory=list, description="factors measured, not "
+                                                                  "manipulated (η²G only)")
 
 
 class SimpleEffectsSpec(Model):
@@ -48,6 +53,9 @@ class SimpleEffectsSpec(Model):
     dv: Measure = "rate"
     within: list[str] | None = None
     method: Literal["separate", "pooled", "both"] = "both"
+    between: list[str] = Field(
+        default_factory=list, description="between-participant factors: columns of the "
+                                          "participants table (participants.tsv), e.g. group")
     where: dict[str, str | list[str]] = Field(
         default_factory=dict, description="only the trials at these levels, e.g. {display: "
                                           "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
@@ -60,10 +68,16 @@ class PosthocSpec(Model):
     by: str | None = None
     dv: Measure = "rate"
     within: list[str] | None = None
-    padjust: Literal["holm", "bonferroni"] = "holm"
+    padjust: Literal["holm", "bonferroni", "BH", "fdr", "sidak", "none"] = "holm"
+    error: Literal["paired", "pooled"] = Field(
+        "paired", description="paired: per-participant tests; pooled: the ANOVA model's "
+                              "error (emmeans)")
     where: dict[str, str | list[str]] = Field(
         default_factory=dict, description="only the trials at these levels, e.g. {display: "
                                           "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
+    between: list[str] = Field(
+        default_factory=list, description="between-participant factors: columns of the "
+                                          "participants table (participants.tsv), e.g. group")
 
 
 class TableSpec(Model):
@@ -167,12 +181,26 @@ class AnalysisSpec(Model):
             refs += [("figure.trace", self.figure.trace)] if self.figure.trace else []
         return refs
 
+    def between_factors(self) -> list[str]:
+        """Every between-participant factor the analyses name (participants' properties)."""
+        out: list[str] = []
+        for a in [*self.anova, *self.simple_effects, *self.posthoc]:
+            out += [f for f in a.between if f not in out]
+        return out
+
     def unknown_factors(self, factors: list[str]) -> list[str]:
         """Messages for every factor name that is not one of ``factors``."""
-        # 'question' is a column too: where: {question: NAME} picks one question's rows.
+        # 'question' is a column too: where: {question: NAME} picks one question's rows;
+        # between factors are participants' properties, checked against participants.tsv.
+        between = self.between_factors()
+        for i, a in enumerate(self.anova):
+            for f in a.observed:
+                if f not in a.between and f not in (a.within or factors):
+                    return [f"analysis.anova[{i}].observed: {f!r} is not one of its factors"]
         return [f"analysis.{where}: {name!r} is not a factor of this experiment (factors: "
                 f"{', '.join(factors)})" for where, name in self.references()
-                if name not in factors and not (where.endswith(".where") and name == "question")]
+                if name not in factors and name not in between
+                and not (where.endswith(".where") and name == "question")]
 
 
 def check_factor_references(spec: AnalysisSpec | None, info: ValidationInfo) -> Any:
