@@ -658,6 +658,17 @@ def _rounding_to_zero(t: pd.DataFrame, scale: float) -> None:
         t.loc[zero_err & (t["SS"] == 0), "ges"] = np.nan
 
 
+def _with_pes_interval(t: pd.DataFrame) -> None:
+    """Insert ``pes_ci90_low``/``pes_ci90_high`` after ``pes``: the 90 % interval of
+    partial η² on the table's (sphericity-assumed) df (:func:`.effect_sizes.eta2p_ci`)."""
+    from .effect_sizes import ETA2P_CI_LEVEL, eta2p_ci
+    lims = [eta2p_ci(F, d1, d2, ETA2P_CI_LEVEL) for F, d1, d2 in
+            zip(t["F"].to_numpy(float), t["df1"].to_numpy(float), t["df2"].to_numpy(float))]
+    at = t.columns.get_loc("pes") + 1
+    t.insert(at, "pes_ci90_low", [lo for lo, _ in lims])
+    t.insert(at + 1, "pes_ci90_high", [hi for _, hi in lims])
+
+
 def rm_anova(data: pd.DataFrame, dv: str, within: list[str] | str | None, subject: str, *,
              between: list[str] | str | None = None, observed: list[str] | str | None = None,
              missing: str = "drop") -> pd.DataFrame:
@@ -685,7 +696,10 @@ def rm_anova(data: pd.DataFrame, dv: str, within: list[str] | str | None, subjec
     -------
     DataFrame, one row per effect (main effects, then interactions, in afex's
     order): ``df1``, ``df2``, ``SS``, ``SS_error``, ``MSE``, ``F``, ``p``
-    (sphericity assumed), ``pes`` (partial η²), ``ges`` (generalised η²),
+    (sphericity assumed), ``pes`` (partial η²), ``pes_ci90_low`` and
+    ``pes_ci90_high`` (its two-sided 90 % interval from the noncentral F on
+    ``df1``, ``df2``, :func:`.effect_sizes.eta2p_ci`; NaN where F is
+    undefined or infinite), ``ges`` (generalised η²),
     ``mauchly_W``, ``mauchly_p`` (NaN for one-df effects, and when there are
     fewer participants than the effect's df + 1, where the test is undefined
     and R prints W = 0, p = 0), ``eps_gg``, ``p_gg``, ``eps_hf`` (uncapped),
@@ -714,6 +728,7 @@ def rm_anova(data: pd.DataFrame, dv: str, within: list[str] | str | None, subjec
         res = anova_arrays(d.values, d.shape)
         t = _table(res, d.factors, len(d.subjects))
     _rounding_to_zero(t, float((d.values ** 2).sum()))
+    _with_pes_interval(t)
     t.attrs.update(dropped=list(d.dropped), dv=dv, subject=subject, aggregated=d.aggregated,
                    levels=dict(zip(d.between + d.factors, d.between_levels + d.levels)),
                    between=list(d.between), observed=observed,
@@ -829,7 +844,8 @@ def simple_effects(data: pd.DataFrame, dv: str, within: list[str] | str | None, 
 
     Returns one row per level (combination) of ``by`` and effect term:
     ``method``, the ``by`` columns, ``effect``, ``df1``, ``df2``, ``F``, ``p``,
-    and for ``separate`` also ``pes``, ``ges``, ``eps_gg``, ``p_gg``, ``eps_hf``,
+    and for ``separate`` also ``pes`` with its 90 % interval (``pes_ci90_low``,
+    ``pes_ci90_high``), ``ges``, ``eps_gg``, ``p_gg``, ``eps_hf``,
     ``p_hf``, ``mauchly_W``, ``mauchly_p``; ``n`` is the participants analysed.
     """
     within = _as_list(within)
@@ -872,7 +888,8 @@ def simple_effects(data: pd.DataFrame, dv: str, within: list[str] | str | None, 
             rows.append(t)
         out = pd.concat(rows, ignore_index=True)
         out.insert(0, "method", "separate")
-        cols = ["method", *by, "effect", "df1", "df2", "F", "p", "pes", "ges", "mauchly_W",
+        cols = ["method", *by, "effect", "df1", "df2", "F", "p", "pes", "pes_ci90_low",
+                "pes_ci90_high", "ges", "mauchly_W",
                 "mauchly_p", "eps_gg", "p_gg", "eps_hf", "p_hf", "n"]
         out = out[cols]
     else:

@@ -24,7 +24,7 @@ from .rates import recognition_rates
 from .spec import AnalysisSpec, default_spec
 
 __all__ = ["ExperimentAnalysis", "analyse_experiment", "participant_measures", "spec_for",
-           "apa_anova", "format_p"]
+           "apa_anova", "eta2p_interval", "format_p"]
 
 MEASURE_LABEL = {"rate": "recognition rate", "rt_s": "reaction time (s)",
                  "replays": "replays", "answer": "rating"}
@@ -104,14 +104,35 @@ def _df(x: float) -> str:
     return f"{x:.0f}" if abs(x - round(x)) < 1e-9 else _fixed(x, 2)
 
 
+def _bound(x: float) -> str:
+    """An η² limit: '0' and '1' exactly, else two decimals without the leading zero."""
+    return "0" if x == 0 else ("1" if x == 1 else _num2(x))
+
+
+def eta2p_interval(F: float, df1: float, df2: float) -> str:
+    """'90% CI [.39, .81]' for partial η² from F on (df1, df2), or the reason there is none."""
+    from .effect_sizes import ETA2P_CI_LEVEL, eta2p_ci
+    lo, hi = eta2p_ci(F, df1, df2, ETA2P_CI_LEVEL)
+    level = f"{ETA2P_CI_LEVEL * 100:.0f}% CI"
+    if lo != lo:
+        return f"{level} n/a (no error variance)"
+    return f"{level} [{_bound(lo)}, {_bound(hi)}]"
+
+
 def apa_anova(row: pd.Series, correction: str = "auto") -> tuple[str, str]:
     """APA sentence for one ANOVA row, and the correction used.
 
-    'F(1, 14) = 28.78, p < .001, η²p = .67'; with a sphericity correction the
-    dfs are multiplied by ε and the correction is named:
-    'F(1.37, 15.08) = 3.00, p = .094, η²p = .21, ε = .46 (Greenhouse–Geisser)'.
+    'F(1, 14) = 28.78, p < .001, η²p = .67, 90% CI [.39, .81]'; with a
+    sphericity correction the dfs are multiplied by ε and the correction is
+    named: 'F(1.37, 15.08) = 3.00, p = .094, η²p = .21, 90% CI [0, .47],
+    ε = .46 (Greenhouse–Geisser)' (a limit of exactly 0 is printed '0').
     ``auto`` applies Greenhouse–Geisser when Mauchly's p < .05, or when the
     test is undefined (fewer participants than the effect's df + 1).
+
+    The interval of η²p is the one that goes with the test printed: from the
+    noncentral F on the df shown (corrected or not), so it excludes 0 exactly
+    when p < .05 (:func:`.effect_sizes.eta2p_ci`). Where F is infinite (no
+    error variance) the interval is not applicable and the sentence says so.
     """
     if not np.isfinite(row["F"]):
         why = ("the measure does not vary across these cells (effect and error sums of "
@@ -131,7 +152,7 @@ def apa_anova(row: pd.Series, correction: str = "auto") -> tuple[str, str]:
         eps = min(row["eps_hf"], 1.0)
         df1, df2, p = row["df1"] * eps, row["df2"] * eps, row["p_hf"]
     s = (f"F({_df(df1)}, {_df(df2)}) = {_fixed(row['F'])}, {format_p(p)}, "
-         f"η²p = {_num2(row['pes'])}")
+         f"η²p = {_num2(row['pes'])}, {eta2p_interval(row['F'], df1, df2)}")
     if eps is not None:
         s += f", ε = {_num2(eps)} ({'Greenhouse–Geisser' if used == 'GG' else 'Huynh–Feldt'})"
     return s, used
@@ -329,7 +350,9 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
                     f"{_where_text(s.where)} "
                     f"({row['method']} error term): F({_df(row['df1'])}, {_df(row['df2'])}) = "
                     f"{_fixed(row['F'])}, {format_p(row['p'])}"
-                    + (f", η²p = {_num2(row['pes'])}" if row["method"] == "separate" else "")
+                    + (f", η²p = {_num2(row['pes'])}, "
+                       f"{eta2p_interval(row['F'], row['df1'], row['df2'])}"
+                       if row["method"] == "separate" else "")
                     + ".")
         for i, p in enumerate(spec.posthoc):
             within = p.within or factors

@@ -24,6 +24,7 @@ from scipy import stats
 
 from ..errors import InputError
 from .anova import PooledModel, _as_list, grid_function, within_design
+from .effect_sizes import DZ_CI_LEVEL, dz_ci
 
 __all__ = ["p_adjust", "pairwise_tests", "trend_contrasts", "polynomial_contrasts",
            "PADJUST_METHODS"]
@@ -118,7 +119,9 @@ def pairwise_tests(data: pd.DataFrame, dv: str, within: list[str] | str | None, 
     ``p``, ``p_adj``, ``padjust``, ``ci_low``/``ci_high`` (95 % CI of the
     difference, not adjusted), ``error``, and two effect sizes from the
     participants' values: ``dz`` = mean difference / SD of the differences
-    (Cohen 1988, paired comparisons only) and ``dav`` = mean difference / mean
+    (Cohen 1988, paired comparisons only) with its 95 % interval from the
+    noncentral t (``dz_ci95_low``, ``dz_ci95_high``; :func:`.effect_sizes.dz_ci`)
+    and ``dav`` = mean difference / mean
     of the two SDs (Cumming 2012), which does not grow with the correlation
     between the levels; ``n`` participants.
 
@@ -207,6 +210,8 @@ def pairwise_tests(data: pd.DataFrame, dv: str, within: list[str] | str | None, 
                         "ci_low": md - half, "ci_high": md + half, "error": error,
                         "dz": dz, "dav": dav, "n": n})
             block.append(row)
+        for r in block:
+            r["dz_ci95_low"], r["dz_ci95_high"] = dz_ci(r["dz"], r["n"], DZ_CI_LEVEL)
         adj = p_adjust([r["p"] for r in block], padjust)
         for r, pa in zip(block, adj):
             r["p_adj"] = pa
@@ -214,7 +219,8 @@ def pairwise_tests(data: pd.DataFrame, dv: str, within: list[str] | str | None, 
         rows += block
     out = pd.DataFrame(rows)
     cols = [*by, "factor", "A", "B", "mean_A", "mean_B", "mean_diff", "se", "t", "df", "p",
-            "p_adj", "padjust", "ci_low", "ci_high", "error", "dz", "dav", "n"]
+            "p_adj", "padjust", "ci_low", "ci_high", "error", "dz", "dz_ci95_low",
+            "dz_ci95_high", "dav", "n"]
     out = out[cols]
     out.attrs.update(dropped=list(d.dropped), dv=dv)
     return out

@@ -83,7 +83,9 @@ def write_rate_report(trials: pd.DataFrame, sessions: list[SessionData], out: Pa
 # --------------------------------------------------------------------------- full report
 
 _PERCENT_TABLES = ("rates_by", "recognition_table")
-_LABELS = {"df1": "df1", "df2": "df2", "F": "F", "p": "p", "pes": "η²p", "ges": "η²G",
+_LABELS = {"df1": "df1", "df2": "df2", "F": "F", "p": "p", "pes": "η²p",
+           "pes_ci90_low": "η²p 90% CI low", "pes_ci90_high": "η²p 90% CI high", "ges": "η²G",
+           "dz_ci95_low": "dz 95% CI low", "dz_ci95_high": "dz 95% CI high",
            "mauchly_W": "Mauchly W", "mauchly_p": "Mauchly p", "eps_gg": "ε GG",
            "p_gg": "p GG", "eps_hf": "ε HF", "p_hf": "p HF", "n": "n"}
 
@@ -105,6 +107,14 @@ ul.apa li { margin: 0.2em 0; }
 
 
 NOT_APPLICABLE = "n/a"
+
+EFFECT_SIZE_NOTE = (
+    "Intervals of effect sizes: η²p has a two-sided 90% interval from the noncentral F "
+    "distribution (Steiger 2004; it excludes 0 exactly when the F test's p < .05), in the "
+    "tables on the df of the table and in the sentences on the df printed there (corrected "
+    "by ε where a correction is named); dz has a two-sided 95% interval from the noncentral "
+    "t distribution. Both as R's effectsize package computes them "
+    "(vtexp/analysis/effect_sizes.py).")
 
 
 def _cell(v, col: str, percent: bool) -> str:
@@ -285,6 +295,7 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
     h.append("<p class='note'>n/a: not applicable — the measure is undefined there (the "
              "reason is in the row's not_applicable column; Mauchly's test and ε need an "
              "effect with more than one df; dz needs paired values).</p>")
+    h.append(f"<p class='note'>{html.escape(EFFECT_SIZE_NOTE)}</p>")
     h.append("<p class='note'>Repeated-measures ANOVA on participants' cell means (afex::aov_ez "
              "conventions: Mauchly's test, Greenhouse–Geisser and Huynh–Feldt ε, partial and "
              "generalised η²). Simple effects: 'separate' = one ANOVA per level with its own "
@@ -314,6 +325,7 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
         md += [f"## {_title_of(key, a)}", "", md_table(key, T[key]), ""]
     if a.notes:
         md += ["## Notes", ""] + [f"- {n}" for n in a.notes] + [""]
+    md += [EFFECT_SIZE_NOTE, ""]
     md_path = out / "report.md"
     md_path.write_text("\n".join(md), encoding="utf-8")
     files["markdown"] = md_path
