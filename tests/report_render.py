@@ -14,6 +14,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -81,3 +82,63 @@ def screenshot(html: Path, png: Path, width: int = 1280, height: int = 2400) -> 
         subprocess.run([CHROMIUM, *FLAGS, f"--user-data-dir={tmp}/profile",
                         f"--window-size={width},{height}", f"--screenshot={png}",
                         html.resolve().as_uri()], capture_output=True, timeout=120, check=True)
+
+
+# --------------------------------------------------------------------------- figures
+
+def text_overlaps(fig) -> list[tuple[str, str]]:
+    """Pairs of visible, non-empty texts of ``fig`` whose boxes intersect (titles, axis
+    and tick labels, legend entries, cell values: every matplotlib ``Text``), measured
+    by the renderer, so as the PNG shows them. Written here, apart from vtexp's own
+    check, so that the tests measure vtexp's figures and not vtexp's measurement."""
+    from matplotlib.text import Text
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    boxes = []
+    for t in fig.findobj(Text):
+        if not t.get_visible() or not t.get_text().strip() or t.get_alpha() == 0:
+            continue
+        bb = t.get_window_extent(r)
+        if bb.width > 0 and bb.height > 0:
+            boxes.append((t.get_text(), bb.shrunk(0.92, 0.92)))
+    return [(a[0], b[0]) for i, a in enumerate(boxes) for b in boxes[i + 1:]
+            if a[1].overlaps(b[1])]
+
+
+def measure_figure(fig, dpi: float | None) -> dict:
+    """What a saved figure shows: its text overlaps, each axes' box in pixels of the
+    PNG (at the dpi it was saved with), title, y label and lines, each legend's box."""
+    overlaps = text_overlaps(fig)
+    r = fig.canvas.get_renderer()
+    scale = (dpi or fig.dpi) / fig.dpi
+    axes = []
+    for ax in fig.axes:
+        bb = ax.get_window_extent(r)
+        axes.append({"box": bb, "width_px": bb.width * scale, "height_px": bb.height * scale,
+                     "title": ax.get_title(), "ylabel": ax.get_ylabel(),
+                     "images": len(ax.images),
+                     "lines": [(ln.get_label(), [float(v) for v in ln.get_ydata()])
+                               for ln in ax.get_lines()]})
+    legends = [lg.get_window_extent(r) for lg in fig.findobj(
+        lambda a: type(a).__name__ == "Legend")]
+    return {"overlaps": overlaps, "axes": axes, "legends": legends}
+
+
+@contextmanager
+def captured_figures():
+    """Every matplotlib figure saved inside the block, measured as it was saved
+    (:func:`measure_figure`): vtexp's figure functions return PNG bytes, so the
+    figures are caught on their way into ``savefig``."""
+    from matplotlib.figure import Figure
+    got: list[dict] = []
+    real = Figure.savefig
+
+    def savefig(self, fname, *args, **kwargs):
+        got.append(measure_figure(self, kwargs.get("dpi")))
+        return real(self, fname, *args, **kwargs)
+
+    Figure.savefig = savefig
+    try:
+        yield got
+    finally:
+        Figure.savefig = real

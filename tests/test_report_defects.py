@@ -1,10 +1,16 @@
 """One test per class of report defect found in the demo's reports (issue 14, part 4).
 
-Each failed before its fix: an undefined measure printed as a number, a crash on
-a constant measure, a kappa interval beyond kappa's range, question rows counted
-as trials, a figure caption naming another paper, the mixed model's SE headed
-"sd", a missing value in a replicated cell averaged away without a word, and
-the commands that existed only as Python functions.
+Each failed on the code before its fix (checked by running this file on a work
+tree at the commit before issue 14's changes): an undefined measure printed as
+a number, a crash on a constant measure, a kappa interval beyond kappa's range,
+question rows counted as trials, a figure caption naming another paper's figure,
+the mixed model's SE headed "sd", a missing value in a replicated cell averaged
+away without a word, effect sizes without an interval, figures with text on
+text, a letter matrix too small to read, a per-participant figure averaging
+opposite ratings into a flat line, the whirlpool without a figure and its turns
+called a rating, a legend over the data, and the commands that existed only as
+Python functions. The figures are measured as they are saved
+(``report_render.captured_figures``), not through vtexp's own overlap check.
 """
 
 from __future__ import annotations
@@ -19,10 +25,61 @@ import pytest
 from statsmodels.stats.inter_rater import cohens_kappa
 
 from conftest import ROOT
+from report_render import captured_figures
 from vtexp.analysis.confusion import agreement, information_transfer
 from vtexp.analysis.report import html_table, md_table
 
 DATA = ROOT / "tests" / "data"
+
+
+def study_analysis(name: str, trials: pd.DataFrame):
+    """:func:`analyse_experiment` of ``trials`` as sessions of experiments/NAME.yaml
+    would give them (its factors, questions and analysis: section recorded)."""
+    from vtexp.analysis.load import SessionData
+    from vtexp.analysis.pipeline import analyse_experiment
+    from vtexp.experiment import load_experiment
+    loaded = load_experiment(ROOT / "experiments" / f"{name}.yaml").experiment
+    record = loaded.model_dump(mode="json")
+    sessions = [SessionData(Path(f"/data/{name}/sub-{p}/ses-1"),
+                            {"format": "vtexp-session", "experiment": name, "participant": p,
+                             "session": 1, "status": "completed", "n_trials_planned": 0,
+                             "experiment_loaded": record}, pd.DataFrame())
+                for p in trials["participant"].unique()]
+    return analyse_experiment(trials.assign(experiment=name), sessions, name)
+
+
+def rating_trials(factors: dict[str, list[str]], answer, questions=("rating",), n=6):
+    """One row per trial and question; ``answer(participant, question, **levels)``."""
+    import itertools
+    rows, trial = [], 0
+    for p in range(n):
+        for levels in itertools.product(*factors.values()):
+            for rep in range(2):
+                trial += 1
+                at = dict(zip(factors, levels))
+                for q in questions:
+                    rows.append({"participant": f"{p + 1:02d}", "session": 1, "trial": trial,
+                                 **at, "question": q, "answer": str(answer(p, q, **at)),
+                                 "correct": pd.NA, "correct_answer": None, "rt_s": 1.0,
+                                 "replays": 0})
+    t = pd.DataFrame(rows)
+    t["correct"] = t["correct"].astype("Int64")
+    for f, lv in factors.items():
+        t[f] = pd.Categorical(t[f], categories=lv)
+    return t
+
+
+def circle_rectangle_report(tmp_path):
+    """Seed 002's circle and rectangle: every participant rates the circle +2 or +1 and
+    the rectangle −2 or −1, more surely with corner emphasis."""
+    t = rating_trials({"shape": ["circle", "rectangle"], "corners": ["plain", "emphasised"]},
+                      lambda p, q, shape, corners: (1 if shape == "circle" else -1)
+                      * (2 if corners == "emphasised" or p % 2 else 1))
+    a = study_analysis("circle_vs_rectangle", t)
+    from vtexp.analysis.report import write_experiment_report
+    with captured_figures() as figs:
+        files = write_experiment_report(a, tmp_path / "circle_vs_rectangle")
+    return a, files, figs
 
 
 def one_stimulus_trials():
@@ -80,6 +137,15 @@ def test_constant_measure_is_not_applicable_not_a_traceback(cli, tmp_path):
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert "soa: F not applicable: the measure does not vary" in r.stdout
     assert "nan" not in r.stdout.lower().replace("n/a", "")
+    # every participant shows the same effect: no error variance, F infinite
+    # (before: decimal.InvalidOperation formatting F = inf)
+    d["score"] = d["soa"].map({v: str(i) for i, v in enumerate(sorted(d["soa"].unique()))})
+    d.to_csv(f, index=False)
+    r = cli("stats", "rm-anova", str(f), "--dv", "score", "--within", "shape", "soa",
+            "--subject", "participant")
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert "soa: F not applicable: the error sum of squares is 0" in r.stdout
+    assert "inf" not in r.stdout.lower()
 
 
 def test_sessions_table_counts_trials_not_question_rows():
@@ -91,12 +157,16 @@ def test_sessions_table_counts_trials_not_question_rows():
     assert row["trials"] == 3 and row["planned"] == 3
 
 
-def test_figure_captions_name_no_other_papers_figures():
-    import inspect
-
-    from vtexp.analysis import report
-    src = inspect.getsource(report.write_experiment_report) + repr(report._SECTIONS)
-    assert "seed 000 Fig" not in src and "seed 001 Table" not in src
+def test_figure_captions_name_no_other_papers_figures(tmp_path):
+    import re
+    # a seed 002 study: its report's headings and captions name no seed 000/001 figure
+    _, files, _ = circle_rectangle_report(tmp_path)
+    html = files["html"].read_text()
+    md = files["markdown"].read_text()
+    headings = re.findall(r"<h2>(.*?)</h2>", html) + re.findall(r"^## (.*)$", md, re.M)
+    assert len(headings) > 5
+    for h in headings:
+        assert not re.search(r"seed 00[01]", h), h
 
 
 def test_mixed_model_table_heads_its_standard_errors_se():
@@ -108,6 +178,14 @@ def test_mixed_model_table_heads_its_standard_errors_se():
 
 def test_missing_value_in_a_replicated_cell_is_said(cli):
     f = DATA / "mixed_2b2w.csv"
+    # within factors only: participant 07's other value of square × slow was averaged
+    # on its own before, silently; afex drops the participant
+    r = cli("stats", "rm-anova", str(f), "--dv", "rate", "--within", "shape", "timing",
+            "--subject", "participant", "--json")
+    assert r.returncode == 0, r.stderr
+    assert "07: a missing value of 'rate' in square × slow" in r.stderr
+    assert json.loads(r.stdout)["dropped"] == ["07"]
+    assert json.loads(r.stdout)["effects"][0]["n"] == 29
     r = cli("stats", "rm-anova", str(f), "--dv", "rate", "--within", "shape", "timing",
             "--between", "group", "age", "--subject", "participant", "--json")
     assert r.returncode == 0, r.stderr
@@ -157,3 +235,85 @@ def test_stats_commands_for_what_was_only_python(cli, tmp_path):
     r = cli("stats", "posthoc", str(f), "--dv", "score", "--within", "soa", "--subject",
             "participant", "--factor", "nope")
     assert r.returncode == 2 and "'nope'" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_effect_sizes_are_printed_with_their_interval(cli):
+    # tables and sentences (the interval's values are checked against R in
+    # tests/test_effect_sizes.py)
+    r = cli("stats", "rm-anova", str(DATA / "grid_3x4.csv"), "--dv", "score", "--within",
+            "shape", "soa", "--subject", "participant")
+    assert r.returncode == 0, r.stderr
+    assert "η²p 90% CI low" in r.stdout and "η²p 90% CI high" in r.stdout
+    assert "shape: F(2, 26) = 14.91, p < .001, η²p = .53, 90% CI [.29, .68]" in r.stdout
+    r = cli("stats", "posthoc", str(DATA / "grid_3x4.csv"), "--dv", "score", "--within",
+            "shape", "soa", "--subject", "participant", "--factor", "soa", "--json")
+    assert r.returncode == 0, r.stderr
+    rows = pd.DataFrame(json.loads(r.stdout)["rows"])
+    assert (rows["dz_ci95_low"] < rows["dz"]).all() and (rows["dz"] < rows["dz_ci95_high"]).all()
+
+
+def test_report_figures_have_no_text_on_text_and_a_readable_letter_matrix():
+    from vtexp.analysis import figures
+    letters = [chr(65 + i) for i in range(26)]
+    rows = [{"timing": t, "stimulus": s, "response": r,
+             "proportion": (0.8 if s == r else 0.2 / 25)}
+            for t in ("200/100 ms, long condition name", "300/500 ms, another long name")
+            for s in letters for r in letters]
+    with captured_figures() as figs:
+        figures.confusion_heatmaps(pd.DataFrame(rows), ["timing"])
+        four = [{"timing": t, "stimulus": s, "response": r, "proportion": 0.25}
+                for t in [f"{a}/{b}" for a in (200, 300) for b in (100, 200, 300, 400)]
+                for s in ("triangle", "circle", "square", "rectangle")
+                for r in ("triangle", "circle", "square", "rectangle")]
+        figures.confusion_heatmaps(pd.DataFrame(four), ["timing"])
+    letters_fig, four_fig = figs
+    assert letters_fig["overlaps"] == [] and four_fig["overlaps"] == []
+    # a 26 x 26 matrix gets at least 20 px of the PNG per cell (before: 250 px in all)
+    panels = [ax for ax in letters_fig["axes"] if ax["images"]]
+    assert len(panels) == 2
+    assert all(ax["width_px"] / 26 >= 20 and ax["height_px"] / 26 >= 20 for ax in panels)
+
+
+def test_per_participant_figure_keeps_opposite_ratings_apart(tmp_path):
+    # every participant rates the circle above +1 and the rectangle below −1:
+    # averaging over shape drew each of them as a line at 0
+    a, _, figs = circle_rectangle_report(tmp_path)
+    per = [f for f in figs if any(label.startswith("sub-") for ax in f["axes"]
+                                  for label, _ in ax["lines"])]
+    assert len(per) == 1
+    lines = [y for ax in per[0]["axes"] for label, y in ax["lines"] if label.startswith("sub-")]
+    assert len(lines) == 2 * 6                        # a panel per shape, a line per person
+    assert all(abs(v) >= 1 for y in lines for v in y), lines
+    assert all(f["overlaps"] == [] for f in figs)
+
+
+def test_rate_figure_legend_is_outside_the_axes(tmp_path):
+    _, _, figs = circle_rectangle_report(tmp_path)
+    rate = next(f for f in figs if any("mean ± SE" in ax["ylabel"] for ax in f["axes"]))
+    (ax,) = rate["axes"]
+    (legend,) = rate["legends"]
+    assert not legend.overlaps(ax["box"]), (legend, ax["box"])
+
+
+def test_whirlpool_has_figures_and_its_turns_are_not_a_rating(tmp_path):
+    from vtexp.analysis.report import write_experiment_report
+    t = rating_trials({"phantom": ["without", "with"], "frequency": ["25Hz", "40Hz", "50Hz"]},
+                      lambda p, q, phantom, frequency: (
+                          min(4, 1 + (phantom == "with") + (p + len(frequency)) % 3)
+                          if q == "sensation" else 2 + (phantom == "with") + p % 3),
+                      questions=("sensation", "turns"))
+    a = study_analysis("whirlpool", t)
+    with captured_figures() as figs:
+        files = write_experiment_report(a, tmp_path / "whirlpool")
+    html = files["html"].read_text()
+    assert html.count("data:image/png;base64,") == 4         # rates and participants, twice
+    assert "Sensation rating by frequency and phantom (mean ± SE" in html
+    assert "Number of turns by frequency and phantom (mean ± SE" in html
+    turns = [s for s in a.sentences if "turns" in s.lower()]
+    assert len(turns) == 3 and all(s.startswith("Number of turns, phantom × frequency")
+                                   for s in turns)
+    assert not any(s.startswith("Rating") for s in a.sentences)
+    ylabels = {ax["ylabel"] for f in figs for ax in f["axes"] if ax["ylabel"]}
+    assert {"number of turns (mean ± SE)", "number of turns"} <= ylabels
+    assert not any("rating" in y for y in ylabels if "turns" in y)
+    assert all(f["overlaps"] == [] for f in figs)

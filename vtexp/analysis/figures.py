@@ -1,7 +1,9 @@
 """Figures of the report, drawn with matplotlib (Agg) and returned as PNG bytes.
 
 Each function takes a tidy table that an analysis function returned and only
-draws it: no statistics are computed here.
+draws it: no statistics are computed here. The tests measure the figures as
+they are saved (tests/report_render.py: no text on text, legends off the data,
+cells large enough to read).
 """
 
 from __future__ import annotations
@@ -21,58 +23,32 @@ def _plt():
     return plt
 
 
-#: the overlapping text pairs of the last figure drawn (:func:`text_overlaps`), for tests
-last_overlaps: list[tuple[str, str]] = []
-
-
-def text_overlaps(fig) -> list[tuple[str, str]]:
-    """Pairs of visible, non-empty texts of ``fig`` whose boxes intersect.
-
-    Titles, axis and tick labels, legend entries and cell values are all
-    matplotlib ``Text`` artists; their boxes come from the renderer, so this is
-    what the PNG shows.
-    """
-    fig.canvas.draw()
-    r = fig.canvas.get_renderer()
-    from matplotlib.text import Text
-    boxes = []
-    for t in fig.findobj(Text):
-        if not t.get_visible() or not t.get_text().strip() or t.get_alpha() == 0:
-            continue
-        try:
-            bb = t.get_window_extent(r)
-        except Exception:                    # pragma: no cover - artists without a renderer
-            continue
-        if bb.width > 0 and bb.height > 0:
-            boxes.append((t.get_text(), bb.shrunk(0.92, 0.92)))
-    out = []
-    for i in range(len(boxes)):
-        for j in range(i + 1, len(boxes)):
-            if boxes[i][1].overlaps(boxes[j][1]):
-                out.append((boxes[i][0], boxes[j][0]))
-    return out
-
-
 def _png(fig) -> bytes:
-    last_overlaps[:] = text_overlaps(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     _plt().close(fig)
     return buf.getvalue()
 
 
-def _percent(ax, dv: str) -> None:
+def _y_axis(ax, dv: str, scale: dict[int, str] | None = None) -> None:
+    """Rates as percentages; a rating scale's points with their words, end to end."""
     if dv == "rate":
         ax.set_ylim(0, 1.05)
         ax.yaxis.set_major_formatter(lambda v, _: f"{v * 100:.0f}%")
+    elif scale:
+        points = sorted(scale)
+        ax.set_ylim(points[0] - 0.3, points[-1] + 0.3)
+        ax.set_yticks(points, [f"{v} {scale[v]}".strip() for v in points], fontsize=8)
 
 
 def rate_by_condition(measures: pd.DataFrame, dv: str, x: str, trace: str | None,
-                      ylabel: str) -> bytes:
+                      ylabel: str, *, scale: dict[int, str] | None = None) -> bytes:
     """Mean of the participants' values per condition, ± 1 SE across participants.
 
     Seed 000 Fig. 11 (recognition rate per mode) in line form: x axis ``x``,
-    one line per level of ``trace``.
+    one line per level of ``trace``, the legend outside the axes (to the
+    right) so that it never covers a line. ``scale`` (a rating scale's points
+    and their words) labels the y axis with the scale.
     """
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -93,15 +69,17 @@ def rate_by_condition(measures: pd.DataFrame, dv: str, x: str, trace: str | None
     ax.set_xticks(range(len(xs)), xs, rotation=30 if len(xs) > 5 else 0)
     ax.set_xlabel(x)
     ax.set_ylabel(f"{ylabel} (mean ± SE)")
-    _percent(ax, dv)
+    _y_axis(ax, dv, scale)
     if trace:
-        ax.legend(title=trace, fontsize=8, ncol=2 if len(groups) > 4 else 1)
+        ax.legend(title=trace, fontsize=8, ncol=2 if len(groups) > 12 else 1,
+                  loc="upper left", bbox_to_anchor=(1.02, 1), borderaxespad=0)
     ax.grid(axis="y", alpha=0.3)
     return _png(fig)
 
 
 def per_participant_lines(measures: pd.DataFrame, dv: str, x: str, ylabel: str, *,
-                          trace: str | None = None) -> bytes:
+                          trace: str | None = None,
+                          scale: dict[int, str] | None = None) -> bytes:
     """One line per participant across the levels of ``x`` (seed 000 Figs. 12–13).
 
     With ``trace``, one panel per level of it: averaging over a factor whose
@@ -131,7 +109,7 @@ def per_participant_lines(measures: pd.DataFrame, dv: str, x: str, ylabel: str, 
         ax.set_xlabel(x)
         if name is not None:
             ax.set_title(f"{trace} {name}", fontsize=9)
-        _percent(ax, dv)
+        _y_axis(ax, dv, scale)
         ax.grid(axis="y", alpha=0.3)
     axes[0][0].set_ylabel(ylabel)
     axes[0][-1].legend(fontsize=7, ncol=2, bbox_to_anchor=(1.02, 1), loc="upper left")

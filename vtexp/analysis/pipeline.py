@@ -30,6 +30,65 @@ MEASURE_LABEL = {"rate": "recognition rate", "rt_s": "reaction time (s)",
                  "replays": "replays", "answer": "rating"}
 
 
+def questions_of(loaded: dict) -> list[dict]:
+    """The questions of an experiment as recorded in its sessions (``question(s):``)."""
+    if loaded.get("questions"):
+        return [q for q in loaded["questions"] if q]
+    return [loaded["question"]] if loaded.get("question") else []
+
+
+def _question_for(where: dict, questions: list[dict]) -> dict | None:
+    """The question whose answers an analysis with ``where`` reads, if it is one."""
+    named = where.get("question")
+    if isinstance(named, str):
+        return next((q for q in questions if q.get("name") == named), {"name": named})
+    return questions[0] if len(questions) == 1 else None
+
+
+def measure_label(dv: str, where: dict, questions: list[dict]) -> str:
+    """What the measure is, in words, for sentences, captions and axes.
+
+    ``answer`` is named after its question: a rating question's name with
+    'rating' ('sensation rating'), a number question's as a count ('number of
+    turns'); the other measures by :data:`MEASURE_LABEL`.
+    """
+    if dv != "answer":
+        return MEASURE_LABEL[dv]
+    q = _question_for(where, questions) or {}
+    name = str(q.get("name") or "").replace("_", " ").strip()
+    if q.get("kind") == "number":
+        if not name or "count" in name or "number" in name:
+            return name or "count"
+        return f"number of {name}"
+    if name in ("", "rating", "response"):
+        return "rating"
+    return name if "rating" in name else f"{name} rating"
+
+
+def rating_scale(dv: str, where: dict, questions: list[dict]) -> dict[int, str] | None:
+    """The points of the rating scale an ``answer`` measure is on, with their words."""
+    if dv != "answer":
+        return None
+    q = _question_for(where, questions) or {}
+    if q.get("kind") != "rating" or "low" not in q or "high" not in q:
+        return None
+    words = {int(k): str(v) for k, v in (q.get("labels") or {}).items()}
+    return {v: words.get(v, "") for v in range(int(q["low"]), int(q["high"]) + 1)}
+
+
+@dataclass
+class FigureData:
+    """One declared figure: the table it draws (``key`` in the tables) and its words."""
+
+    key: str
+    x: str
+    trace: str | None
+    dv: str
+    label: str
+    where_text: str = ""
+    scale: dict[int, str] | None = None
+
+
 @dataclass
 class ExperimentAnalysis:
     experiment: str
@@ -43,6 +102,9 @@ class ExperimentAnalysis:
     n_participants: int
     n_trials: int
     tables: dict[str, pd.DataFrame] = field(default_factory=dict)
+    #: headings of tables that name their measure (key -> heading); others by kind
+    titles: dict[str, str] = field(default_factory=dict)
+    figures: list[FigureData] = field(default_factory=list)
     sentences: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
@@ -216,6 +278,10 @@ def _subset(trials: pd.DataFrame, where: dict) -> pd.DataFrame:
     return out
 
 
+def _capital(text: str) -> str:
+    return text[:1].upper() + text[1:]
+
+
 def _where_text(where: dict) -> str:
     if not where:
         return ""
@@ -307,9 +373,25 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
     if spec.table:
         T["recognition_table"] = recognition_table(sub, spec.table.rows, spec.table.columns,
                                                    pooled=spec.table.pooled)
-    if spec.figure:
-        by = [spec.figure.x] + ([spec.figure.trace] if spec.figure.trace else [])
-        T["figure_per_participant"] = participant_measures(sub, spec.figure.dv, by)
+    questions = questions_of(loaded)
+
+    def label(dv: str, where: dict) -> str:
+        return measure_label(dv, where, questions)
+
+    def rows(dv: str, where: dict) -> str:
+        """The rows an analysis reads, in words; a question its measure is named after
+        is not said twice ('Number of turns', not 'Number of turns (question = turns)')."""
+        named = dv == "answer" and isinstance(where.get("question"), str)
+        return _where_text({k: v for k, v in where.items() if not (named and k == "question")})
+
+    for i, fs in enumerate(spec.figures()):
+        by = [fs.x] + ([fs.trace] if fs.trace else [])
+        key = "figure_per_participant" + (f"_{i + 1}" if i else "")
+        T[key] = participant_measures(_subset(sub, fs.where), fs.dv, by)
+        res.figures.append(FigureData(key=key, x=fs.x, trace=fs.trace, dv=fs.dv,
+                                      label=label(fs.dv, fs.where),
+                                      where_text=rows(fs.dv, fs.where),
+                                      scale=rating_scale(fs.dv, fs.where, questions)))
 
     if res.n_participants < 2 and (spec.anova or spec.simple_effects or spec.posthoc
                                    or spec.ordinal):
@@ -322,6 +404,9 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
             t = run(rm_anova, m, a.dv, within, "participant", between=a.between,
                     observed=a.observed or None)
             T[f"anova_{i + 1}"] = t
+            res.titles[f"anova_{i + 1}"] = (
+                f"{'Mixed' if a.between else 'Repeated-measures'} ANOVA of the "
+                f"{label(a.dv, a.where)}{rows(a.dv, a.where)}")
             for _, row in t.iterrows():
                 sentence, used = apa_anova(row, a.correction)
                 row_note = ""
@@ -331,8 +416,8 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
                                 if row["mauchly_p"] == row["mauchly_p"] else
                                 " (Mauchly's test undefined: fewer participants than df + 1)")
                 res.sentences.append(
-                    f"{MEASURE_LABEL[a.dv].capitalize()}, {' × '.join(a.between + within)}"
-                    f"{_where_text(a.where)}: effect of "
+                    f"{_capital(label(a.dv, a.where))}, {' × '.join(a.between + within)}"
+                    f"{rows(a.dv, a.where)}: effect of "
                     f"{row['effect'].replace(':', ' × ')}: {sentence}{row_note}.")
             if a.note:
                 res.sentences.append(f"(The paper: {a.note}.)")
@@ -344,10 +429,13 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
                          by=s.by, method=meth, between=s.between) for meth in methods]
             t = pd.concat(parts, ignore_index=True)
             T[f"simple_effects_{i + 1}"] = t
+            res.titles[f"simple_effects_{i + 1}"] = (
+                f"Simple effects of {s.effect} at each {s.by}: the {label(s.dv, s.where)}"
+                f"{rows(s.dv, s.where)}")
             for _, row in t.iterrows():
                 res.sentences.append(
                     f"Simple effect of {row['effect']} at {s.by} = {row[s.by]}"
-                    f"{_where_text(s.where)} "
+                    f"{rows(s.dv, s.where)} "
                     f"({row['method']} error term): F({_df(row['df1'])}, {_df(row['df2'])}) = "
                     f"{_fixed(row['F'])}, {format_p(row['p'])}"
                     + (f", η²p = {_num2(row['pes'])}, "
@@ -360,16 +448,22 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
             T[f"posthoc_{i + 1}"] = run(pairwise_tests, m, p.dv, within, "participant",
                                         factor=p.factor, by=p.by, padjust=p.padjust,
                                         between=p.between, error=p.error)
+            res.titles[f"posthoc_{i + 1}"] = (
+                f"Paired comparisons of {p.factor}" + (f" at each {p.by}" if p.by else "")
+                + f": the {label(p.dv, p.where)}{rows(p.dv, p.where)}")
         for i, o in enumerate(spec.ordinal):
             m = participant_measures(_subset(sub, o.where), o.dv, [o.factor])
             fr = run(friedman, m, o.dv, o.factor, "participant")
             T[f"friedman_{i + 1}"] = fr
             T[f"wilcoxon_{i + 1}"] = run(wilcoxon_pairwise, m, o.dv, o.factor, "participant",
                                          padjust=o.padjust)
+            what = f"{label(o.dv, o.where)}{rows(o.dv, o.where)}"
+            res.titles[f"friedman_{i + 1}"] = f"Friedman test of {o.factor}: the {what}"
+            res.titles[f"wilcoxon_{i + 1}"] = (f"Wilcoxon signed-rank comparisons of "
+                                               f"{o.factor}: the {what}")
             r = fr.iloc[0]
             res.sentences.append(
-                f"Friedman test of {o.factor} on the {MEASURE_LABEL[o.dv]}"
-                f"{_where_text(o.where)}: χ²({_df(r['df'])}, "
+                f"Friedman test of {o.factor} on the {what}: χ²({_df(r['df'])}, "
                 f"N = {int(r['n'])}) = {_fixed(r['Q'])}, {format_p(r['p'])}, Kendall's W = "
                 f"{_num2(r['kendall_W'])}.")
 

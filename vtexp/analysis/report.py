@@ -187,6 +187,8 @@ _SECTIONS = [
 
 
 def _title_of(key: str, a) -> str:
+    if key in a.titles:
+        return a.titles[key]
     for prefix, title in _SECTIONS:
         if key == prefix or key.startswith(prefix + "_"):
             if a.spec.table:
@@ -208,7 +210,6 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
     import html
 
     from . import figures
-    from .pipeline import MEASURE_LABEL
 
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
@@ -222,20 +223,24 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
 
     figs: list[tuple[str, str, bytes]] = []
     T = a.tables
-    if a.spec.figure and "figure_per_participant" in T:
-        fs = a.spec.figure
-        m = T["figure_per_participant"].copy()
-        for col in [fs.x] + ([fs.trace] if fs.trace else []):
+    for i, fd in enumerate(a.figures):
+        if fd.key not in T or T[fd.key].empty:
+            continue
+        m = T[fd.key].copy()
+        for col in [fd.x] + ([fd.trace] if fd.trace else []):
             m[col] = pd.Categorical(m[col].astype(str),
                                     categories=[str(v) for v in a.levels.get(col, [])] or None)
-        label = MEASURE_LABEL[fs.dv]
-        figs.append(("rates", f"{label.capitalize()} by {fs.x}"
-                     + (f" and {fs.trace}" if fs.trace else "") + " (mean ± SE across "
+        what = fd.label[:1].upper() + fd.label[1:]
+        n = f"_{i + 1}" if i else ""
+        figs.append((f"rates{n}", f"{what}{fd.where_text} by {fd.x}"
+                     + (f" and {fd.trace}" if fd.trace else "") + " (mean ± SE across "
                      "participants)",
-                     figures.rate_by_condition(m, fs.dv, fs.x, fs.trace, label)))
-        figs.append(("participants", f"{label.capitalize()} by {fs.x}, one line per "
-                     "participant" + (f", one panel per {fs.trace}" if fs.trace else ""),
-                     figures.per_participant_lines(m, fs.dv, fs.x, label, trace=fs.trace)))
+                     figures.rate_by_condition(m, fd.dv, fd.x, fd.trace, fd.label,
+                                               scale=fd.scale)))
+        figs.append((f"participants{n}", f"{what}{fd.where_text} by {fd.x}, one line per "
+                     "participant" + (f", one panel per {fd.trace}" if fd.trace else ""),
+                     figures.per_participant_lines(m, fd.dv, fd.x, fd.label, trace=fd.trace,
+                                                   scale=fd.scale)))
     if "confusion" in T:
         figs.append(("confusion", "Confusion matrices (rows: shape presented; columns: "
                      "answer; % of the row)",
@@ -247,8 +252,9 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
 
     mismatch = a.sessions[a.sessions["checksum"] == "MISMATCH"]
     unclosed = a.sessions[a.sessions["status"] != "completed"]
-    order = [k for k in T if k not in ("confusion", "figure_per_participant",
-                                       "information_transfer_all", "agreement_all")
+    order = [k for k in T if k not in ("confusion", "information_transfer_all",
+                                       "agreement_all")
+             and not k.startswith("figure_per_participant")
              and not (k.startswith("rates_by_") and k not in ("rates_by_condition",
                                                               "rates_by_participant"))]
 

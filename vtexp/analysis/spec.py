@@ -119,11 +119,15 @@ class MixedModelSpec(Model):
 
 
 class FigureSpec(Model):
-    """Rate per condition (x axis ``x``, one line per level of ``trace``)."""
+    """A measure per condition (x axis ``x``, one line per level of ``trace``): the mean
+    of the participants ± SE, and one line per participant (one panel per ``trace``)."""
 
     x: str
     trace: str | None = None
     dv: Measure = "rate"
+    where: dict[str, str | list[str]] = Field(
+        default_factory=dict, description="only these rows, e.g. {question: turns} for one "
+                                          "question of several")
 
 
 class AnalysisSpec(Model):
@@ -136,7 +140,14 @@ class AnalysisSpec(Model):
     confusion: ConfusionSpec | None = None
     ordinal: list[OrdinalSpec] = Field(default_factory=list)
     mixed_model: MixedModelSpec | None = None
-    figure: FigureSpec | None = None
+    figure: FigureSpec | list[FigureSpec] | None = Field(
+        None, description="a figure, or a list of them (e.g. one per question)")
+
+    def figures(self) -> list[FigureSpec]:
+        """The declared figures as a list (``figure:`` may be one or a list)."""
+        if self.figure is None:
+            return []
+        return list(self.figure) if isinstance(self.figure, list) else [self.figure]
 
     @model_validator(mode="after")
     def _distinct(self) -> Self:
@@ -176,9 +187,12 @@ class AnalysisSpec(Model):
             refs += [("mixed_model.factors", f) for f in self.mixed_model.factors or []]
             refs += [("mixed_model.items", self.mixed_model.items)] if self.mixed_model.items \
                 else []
-        if self.figure:
-            refs += [("figure.x", self.figure.x)]
-            refs += [("figure.trace", self.figure.trace)] if self.figure.trace else []
+        many = isinstance(self.figure, list)
+        for i, f in enumerate(self.figures()):
+            at = f"figure[{i}]" if many else "figure"
+            refs += [(f"{at}.x", f.x)]
+            refs += [(f"{at}.trace", f.trace)] if f.trace else []
+            refs += [(f"{at}.where", k) for k in f.where]
         return refs
 
     def between_factors(self) -> list[str]:
