@@ -86,11 +86,48 @@ def screenshot(html: Path, png: Path, width: int = 1280, height: int = 2400) -> 
 
 # --------------------------------------------------------------------------- figures
 
+def _corners(t, renderer) -> "np.ndarray":
+    """The four corners of a text's box as drawn: rotated text is a rotated rectangle,
+    whose axis-aligned box (what ``get_window_extent`` gives) would cover its
+    neighbours' without a glyph touching. The rectangle's centre is its
+    axis-aligned box's centre; its sides are the text's extent unrotated."""
+    import numpy as np
+    bb = t.get_window_extent(renderer)
+    angle = t.get_rotation()
+    if angle % 180 == 0:
+        w, h = bb.width, bb.height
+    else:
+        t.set_rotation(0)
+        flat = t.get_window_extent(renderer)
+        t.set_rotation(angle)
+        w, h = flat.width, flat.height
+    a = np.deg2rad(angle)
+    u, v = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+    c = np.array([(bb.x0 + bb.x1) / 2, (bb.y0 + bb.y1) / 2])
+    w, h = 0.92 * w / 2, 0.92 * h / 2                 # anti-aliasing, not overlap
+    return np.array([c - w * u - h * v, c + w * u - h * v, c + w * u + h * v,
+                     c - w * u + h * v])
+
+
+def _convex_overlap(p, q) -> bool:
+    """Whether two convex polygons intersect (separating axis theorem)."""
+    import numpy as np
+    for poly in (p, q):
+        for i in range(len(poly)):
+            edge = poly[(i + 1) % len(poly)] - poly[i]
+            axis = np.array([-edge[1], edge[0]])
+            a, b = p @ axis, q @ axis
+            if a.max() <= b.min() or b.max() <= a.min():
+                return False
+    return True
+
+
 def text_overlaps(fig) -> list[tuple[str, str]]:
-    """Pairs of visible, non-empty texts of ``fig`` whose boxes intersect (titles, axis
-    and tick labels, legend entries, cell values: every matplotlib ``Text``), measured
-    by the renderer, so as the PNG shows them. Written here, apart from vtexp's own
-    check, so that the tests measure vtexp's figures and not vtexp's measurement."""
+    """Pairs of visible, non-empty texts of ``fig`` that overlap (titles, axis and tick
+    labels, legend entries, cell values: every matplotlib ``Text``), their boxes as
+    the renderer draws them (rotated with the text), so as the PNG shows them.
+    Written here, apart from vtexp, so that the tests measure vtexp's figures and not
+    vtexp's measurement."""
     from matplotlib.text import Text
     fig.canvas.draw()
     r = fig.canvas.get_renderer()
@@ -100,9 +137,9 @@ def text_overlaps(fig) -> list[tuple[str, str]]:
             continue
         bb = t.get_window_extent(r)
         if bb.width > 0 and bb.height > 0:
-            boxes.append((t.get_text(), bb.shrunk(0.92, 0.92)))
+            boxes.append((t.get_text(), bb, _corners(t, r)))
     return [(a[0], b[0]) for i, a in enumerate(boxes) for b in boxes[i + 1:]
-            if a[1].overlaps(b[1])]
+            if a[1].overlaps(b[1]) and _convex_overlap(a[2], b[2])]
 
 
 def measure_figure(fig, dpi: float | None) -> dict:

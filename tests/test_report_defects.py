@@ -137,14 +137,21 @@ def test_constant_measure_is_not_applicable_not_a_traceback(cli, tmp_path):
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert "soa: F not applicable: the measure does not vary" in r.stdout
     assert "nan" not in r.stdout.lower().replace("n/a", "")
-    # every participant shows the same effect: no error variance, F infinite
-    # (before: decimal.InvalidOperation formatting F = inf)
-    d["score"] = d["soa"].map({v: str(i) for i, v in enumerate(sorted(d["soa"].unique()))})
+    # every participant shows the same soa effect (no error variance: F infinite), the
+    # shapes cancel over soa (F = 0/0), the interaction varies by participant
+    # (before: decimal.InvalidOperation)
+    soa = {v: i for i, v in enumerate(sorted(d["soa"].unique()))}
+    shape = dict(zip(sorted(d["shape"].unique()), (1, -1, 0)))
+    who = {v: i + 1 for i, v in enumerate(sorted(d["participant"].unique()))}
+    d["score"] = [str(soa[s] + shape[h] * who[p] * (1 if soa[s] % 2 else -1))
+                  for s, h, p in zip(d["soa"], d["shape"], d["participant"])]
     d.to_csv(f, index=False)
     r = cli("stats", "rm-anova", str(f), "--dv", "score", "--within", "shape", "soa",
             "--subject", "participant")
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert "soa: F not applicable: the error sum of squares is 0" in r.stdout
+    assert "shape: F not applicable: the measure does not vary" in r.stdout
+    assert "shape:soa: F(1, 13) = 45.00, p < .001" in r.stdout
     assert "inf" not in r.stdout.lower()
 
 
@@ -252,6 +259,25 @@ def test_effect_sizes_are_printed_with_their_interval(cli):
     assert (rows["dz_ci95_low"] < rows["dz"]).all() and (rows["dz"] < rows["dz_ci95_high"]).all()
 
 
+def test_the_overlap_measure_sees_text_on_text_and_only_that():
+    import matplotlib
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from report_render import text_overlaps
+    fig, ax = plt.subplots(figsize=(4, 3))
+    ax.text(0.5, 0.5, "first words", ha="center")
+    ax.text(0.52, 0.51, "second words", ha="center")
+    # parallel labels at 45°: their axis-aligned boxes intersect, their glyphs do not
+    ax.set_xticks([0, 0.25, 0.5, 0.75], ["concave surface", "uneven surface", "ball",
+                                         "plane circular"], rotation=45, ha="right")
+    assert text_overlaps(fig) == [("first words", "second words")]
+    fig, ax = plt.subplots(figsize=(4, 3))
+    ax.set_xticks([0, 0.03], ["concave surface", "uneven surface"], rotation=45, ha="right")
+    assert text_overlaps(fig) == [("concave surface", "uneven surface")]
+    plt.close("all")
+
+
 def test_report_figures_have_no_text_on_text_and_a_readable_letter_matrix():
     from vtexp.analysis import figures
     letters = [chr(65 + i) for i in range(26)]
@@ -266,8 +292,18 @@ def test_report_figures_have_no_text_on_text_and_a_readable_letter_matrix():
                 for s in ("triangle", "circle", "square", "rectangle")
                 for r in ("triangle", "circle", "square", "rectangle")]
         figures.confusion_heatmaps(pd.DataFrame(four), ["timing"])
-    letters_fig, four_fig = figs
+        # seed 000's six modes, titled by three factors (the demo's overlapping titles)
+        opts = ["plane circular", "ball", "uncertain", "concave surface", "uneven surface"]
+        modes = [("static", "none", "linear"), ("static", "none", "nonlinear"),
+                 ("dynamic", "fixed", "linear"), ("dynamic", "fixed", "nonlinear"),
+                 ("dynamic", "varied", "linear"), ("dynamic", "varied", "nonlinear")]
+        six = [{"display": d, "timing": t, "intensity": i, "stimulus": s, "response": r,
+                "proportion": 0.6 if s == r else 0.1}
+               for d, t, i in modes for s in opts for r in opts]
+        figures.confusion_heatmaps(pd.DataFrame(six), ["display", "timing", "intensity"])
+    letters_fig, four_fig, six_fig = figs
     assert letters_fig["overlaps"] == [] and four_fig["overlaps"] == []
+    assert six_fig["overlaps"] == []
     # a 26 x 26 matrix gets at least 20 px of the PNG per cell (before: 250 px in all)
     panels = [ax for ax in letters_fig["axes"] if ax["images"]]
     assert len(panels) == 2
@@ -299,8 +335,9 @@ def test_whirlpool_has_figures_and_its_turns_are_not_a_rating(tmp_path):
     from vtexp.analysis.report import write_experiment_report
     t = rating_trials({"phantom": ["without", "with"], "frequency": ["25Hz", "40Hz", "50Hz"]},
                       lambda p, q, phantom, frequency: (
-                          min(4, 1 + (phantom == "with") + (p + len(frequency)) % 3)
-                          if q == "sensation" else 2 + (phantom == "with") + p % 3),
+                          (p + 2 * (phantom == "with") + int(frequency[:2]) // 10) % 5
+                          if q == "sensation" else
+                          3 + p * (phantom == "with") + (p + int(frequency[:2])) % 4),
                       questions=("sensation", "turns"))
     a = study_analysis("whirlpool", t)
     with captured_figures() as figs:
