@@ -78,6 +78,10 @@ def test_undefined_f_has_no_interval():
     assert eta2p_ci(0.0, 2, 20) == (0.0, 0.0)
     assert all(np.isnan(dz_ci(float("nan"), 12)))
     assert all(np.isnan(dz_ci(0.5, 1)))
+    from vtexp.analysis.pipeline import eta2p_interval
+    assert eta2p_interval(float("inf"), 1, 10) == "90% CI n/a (no error variance)"
+    assert eta2p_interval(float("nan"), 1, 10) == "90% CI n/a (F is not defined)"
+    assert eta2p_interval(0.01, 2, 20) == "90% CI [0, 0]"
 
 
 @pytest.mark.parametrize("case", EXPECTED["dz"], ids=lambda c: f"dz{c['dz']}n{c['n']}")

@@ -177,7 +177,8 @@ def eta2p_interval(F: float, df1: float, df2: float) -> str:
     lo, hi = eta2p_ci(F, df1, df2, ETA2P_CI_LEVEL)
     level = f"{ETA2P_CI_LEVEL * 100:.0f}% CI"
     if lo != lo:
-        return f"{level} n/a (no error variance)"
+        why = "no error variance" if F == float("inf") else "F is not defined"
+        return f"{level} n/a ({why})"
     return f"{level} [{_bound(lo)}, {_bound(hi)}]"
 
 
@@ -193,8 +194,8 @@ def apa_anova(row: pd.Series, correction: str = "auto") -> tuple[str, str]:
 
     The interval of η²p is the one that goes with the test printed: from the
     noncentral F on the df shown (corrected or not), so it excludes 0 exactly
-    when p < .05 (:func:`.effect_sizes.eta2p_ci`). Where F is infinite (no
-    error variance) the interval is not applicable and the sentence says so.
+    when p < .05 (:func:`.effect_sizes.eta2p_ci`). An F that is not finite
+    gets no sentence of numbers but the reason ("F not applicable: ...").
     """
     if not np.isfinite(row["F"]):
         why = ("the measure does not vary across these cells (effect and error sums of "
