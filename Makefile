@@ -34,11 +34,14 @@ AUDIO_DEBS := espeak-ng libportaudio2
 # The reference firmware (firmware/): avr-gcc and avr-libc build what a lab flashes; the
 # tests run that .elf on an emulated ATmega2560 (libsimavr, through vtexp-simavr).
 FIRMWARE_DEBS := gcc-avr avr-libc binutils-avr libsimavr-dev libelf-dev pkg-config make gcc
-SYSTEM_DEBS := $(GUI_DEBS) $(AUDIO_DEBS) $(FIRMWARE_DEBS)
+# The report tests lay every report out in headless Chromium and check that no text
+# overlaps another (tests/report_render.py).
+REPORT_DEBS := chromium
+SYSTEM_DEBS := $(GUI_DEBS) $(AUDIO_DEBS) $(FIRMWARE_DEBS) $(REPORT_DEBS)
 
 system-packages:
 	@command -v dpkg-query >/dev/null || { command -v Xvfb >/dev/null || \
-	  echo "the window tests need Xvfb, Mesa OpenGL and espeak-ng, the firmware tests avr-gcc and simavr; install them with your package manager" >&2; exit 0; }; \
+	  echo "the window tests need Xvfb, Mesa OpenGL and espeak-ng, the firmware tests avr-gcc and simavr, the report tests Chromium; install them with your package manager" >&2; exit 0; }; \
 	missing=$$(for p in $(SYSTEM_DEBS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null \
 	  | grep -q 'install ok installed' || echo $$p; done | tr '\n' ' '); \
 	if [ -z "$$missing" ]; then exit 0; fi; \

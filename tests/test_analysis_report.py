@@ -13,7 +13,7 @@ from conftest import GRID, write_experiment
 from vtexp.analysis.pipeline import apa_anova, format_p
 
 APA = re.compile(r"F\(\d+(\.\d\d)?, \d+(\.\d\d)?\) = \d+\.\d\d, p (< \.001|= \.\d{3}), η²p = "
-                 r"-?\.\d\d")
+                 r"-?\.\d\d, 90% CI \[(0|\.\d\d), (1|\.\d\d)\]")
 
 
 @pytest.fixture(scope="module")
@@ -32,13 +32,15 @@ def test_apa_sentence_has_the_papers_form():
     row = pd.Series({"df1": 1.0, "df2": 14.0, "F": 28.775, "p": 4e-5, "pes": 0.6727,
                      "mauchly_p": float("nan"), "eps_gg": 1.0, "eps_hf": 1.0, "p_gg": 4e-5,
                      "p_hf": 4e-5, "mauchly_W": float("nan")})
-    assert apa_anova(row)[0] == "F(1, 14) = 28.78, p < .001, η²p = .67"
+    # η²p's 90 % interval from the noncentral F on the df printed (R: see
+    # tests/test_effect_sizes.py; F_to_eta2(28.775, 1, 14) gives [.386, .806])
+    assert apa_anova(row)[0] == "F(1, 14) = 28.78, p < .001, η²p = .67, 90% CI [.39, .81]"
     row2 = row.copy()
     row2.update({"df1": 3.0, "df2": 33.0, "F": 3.0035, "p": 0.0443, "mauchly_p": 0.0004,
                  "eps_gg": 0.45694, "p_gg": 0.0940, "pes": 0.2145})
     s, used = apa_anova(row2)
-    assert used == "GG" and s == ("F(1.37, 15.08) = 3.00, p = .094, η²p = .21, ε = .46 "
-                                  "(Greenhouse–Geisser)")
+    assert used == "GG" and s == ("F(1.37, 15.08) = 3.00, p = .094, η²p = .21, 90% CI [0, .47], "
+                                  "ε = .46 (Greenhouse–Geisser)")
     assert apa_anova(row2, "none")[0].startswith("F(3, 33) = 3.00, p = .044")
     assert format_p(0.0005) == "p < .001" and format_p(0.5) == "p = .500"
 
@@ -75,7 +77,7 @@ def test_analyze_a_mix_of_folders_writes_a_self_contained_report(cli, data, tmp_
     assert len(pd.read_csv(rep / "posthoc_1.csv")) == 28         # 8 timings: 28 pairs
     it = pd.read_csv(rep / "information_transfer.csv")
     assert len(it) == 8 and (it["bias_bits"] > 0).all()
-    assert "Mixed-effects logistic regression" in html and "fit_vb" in html
+    assert "Mixed-effects logistic regression" in html and "Laplace approximation" in html
 
 
 def test_checksum_mismatch_is_reported_prominently_or_refused(cli, data, tmp_path):
@@ -170,8 +172,8 @@ def test_stats_rm_anova_cli_json_equals_the_library(cli):
     assert (got["F"] - want["F"]).abs().max() < 1e-12
     r = cli("stats", "rm-anova", str(f), "--dv", "score", "--within", "shape", "soa",
             "--subject", "participant")
-    assert "soa: F(1.66, 21.60) = 6.02, p = .011, η²p = .32, ε = .55 (Greenhouse–Geisser)" \
-        in r.stdout
+    assert ("soa: F(1.66, 21.60) = 6.02, p = .011, η²p = .32, 90% CI [.05, .52], ε = .55 "
+            "(Greenhouse–Geisser)") in r.stdout
 
 
 def test_stats_cli_errors_name_the_file_and_column(cli, tmp_path):
@@ -202,3 +204,25 @@ def test_reanalysis_script_shows_where_the_papers_df_come_from(data, tmp_path):
     assert "C(timing): F(7, 64)" in r.stdout
     assert "timing: F(" in r.stdout and "η²p" in r.stdout
     assert len(pd.read_csv(tmp_path / "t1.csv", index_col=0)) == 8
+
+
+def test_groups_from_the_participants_table_give_a_mixed_anova(cli, data, tmp_path):
+    import shutil as sh
+    root = tmp_path / "grid"
+    sh.copytree(data, root)
+    text = GRID.read_text()
+    head = text.split("\nanalysis:")[0]
+    f = write_experiment(tmp_path, head + "\nanalysis:\n  anova:\n    - {within: [shape], "
+                         "between: [group]}\n  posthoc:\n    - {factor: group, between: "
+                         "[group], within: [shape], error: pooled}\n", name="grid.yaml")
+    r = cli("analyze", str(root), "--experiment", str(f), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and "participants.tsv" in r.stderr and "Traceback" not in r.stderr
+    (root / "participants.tsv").write_text("participant_id\tgroup\nsub-01\tblind\n"
+                                           "sub-02\tblind\nsub-03\tsighted\n")
+    r = cli("analyze", str(root), "--experiment", str(f), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    rep = tmp_path / "out" / "duration_interval_grid"
+    anova = pd.read_csv(rep / "anova_1.csv")
+    assert list(anova["effect"]) == ["group", "shape", "group:shape"]
+    assert (anova["df2"] == anova["df1"] * 1).all()            # 3 participants − 2 groups
+    assert len(pd.read_csv(rep / "posthoc_1.csv")) == 1

@@ -159,8 +159,8 @@ def test_circle_vs_rectangle_ratings_end_to_end(cli, tmp_path):
     assert side["answer"]["Levels"]["-2"] == "rectangle"
     r = cli("analyze", str(tmp_path / "circle_vs_rectangle"), "--out", str(tmp_path / "out"))
     assert r.returncode == 0, r.stderr
-    assert "Rating, shape × corners: effect of corners: F(1, 2)" in r.stdout
-    assert "Friedman test of shape on the rating" in r.stdout
+    assert "Shape rating, shape × corners: effect of corners: F(1, 2)" in r.stdout
+    assert "Friedman test of shape on the shape rating" in r.stdout
     _reanalysis_script_runs("circle_vs_rectangle", tmp_path, "Mean rating per shape")
 
 
@@ -173,8 +173,12 @@ def test_whirlpool_two_questions_end_to_end(cli, tmp_path):
         assert "18 trials logged" in r.stdout
     r = cli("analyze", str(tmp_path / "whirlpool"), "--out", str(tmp_path / "out"))
     assert r.returncode == 0, r.stderr
-    assert "phantom × frequency (question = sensation): effect of phantom: F(1, 2)" in r.stdout
-    assert "Friedman test of frequency on the rating (question = sensation)" in r.stdout
+    assert "Sensation rating, phantom × frequency: effect of phantom: F(1, 2)" in r.stdout
+    assert "Number of turns, phantom × frequency: effect of phantom: F(1, 2)" in r.stdout
+    assert "Friedman test of frequency on the sensation rating: χ²(2, N = 3)" in r.stdout
+    html = (tmp_path / "out" / "whirlpool" / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == 4            # a figure per question
+    assert "Number of turns by frequency and phantom" in html
     _reanalysis_script_runs("whirlpool", tmp_path, "Mean turns counted")
 
 

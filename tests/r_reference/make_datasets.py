@@ -15,6 +15,9 @@ script reproduces the committed files byte for byte.
 | threeway.csv | display (2) × timing (3) × intensity (3), 10 participants, two rows per cell | a three-factor within design; afex averages the two rows per cell |
 | missing_cell.csv | shape (2) × timing (3), 12 participants, 3 trials (correct 0/1) per cell | participants 04 and 09 lack every trial of one cell; afex drops them with a warning |
 | ratings.csv | frequency (25, 40, 50 Hz), 9 participants, ratings 0–4 | ordinal ratings with ties (seed 002's whirlpool scale) for Friedman and Wilcoxon |
+| mixed_group_soa.csv | group (blind 7, sighted 9) between × soa (100, 200, 300, 400 ms) within, one row per cell | an unbalanced mixed design: type 3 sums of squares, sphericity in question, a graded factor for trend contrasts |
+| mixed_2b2w.csv | group (2) × age (3 bands, observed) between, 4–6 per group × shape (2) × timing (3) within, two rows per cell, one missing value | two between and two within factors, unequal groups, η²G with an observed factor, a participant dropped for a missing value |
+| trials_items.csv | display (2) × timing (2), 20 participants × 16 items, correct 0/1 | a mixed logistic model with crossed participant and item intercepts |
 | trials_glmm.csv | display (2) × timing (3), 24 participants, 10 trials (correct 0/1) per cell | logistic model with a random intercept (SD 1), for the mixed logistic regression against lme4::glmer |
 """
 
@@ -145,9 +148,69 @@ def trials_glmm() -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["participant", "display", "timing", "correct"])
 
 
+def mixed_group_soa() -> pd.DataFrame:
+    rng = np.random.Generator(np.random.PCG64(1008))
+    rows = []
+    k = 0
+    for group, n in (("blind", 7), ("sighted", 9)):
+        for _ in range(n):
+            k += 1
+            u = rng.normal(0, 0.5)
+            slope = rng.normal(0, 0.15)
+            for j, soa in enumerate(["100", "200", "300", "400"]):
+                mu = 2.0 + 0.5 * (group == "blind") + 0.35 * j - 0.05 * j * j \
+                    + 0.15 * j * (group == "blind")
+                y = mu + u + slope * j + rng.normal(0, 0.2 + 0.12 * j)
+                rows.append((pid(k - 1), group, soa, round(float(y), 4)))
+    return pd.DataFrame(rows, columns=["participant", "group", "soa", "score"])
+
+
+def mixed_2b2w() -> pd.DataFrame:
+    rng = np.random.Generator(np.random.PCG64(1009))
+    sizes = {("blind", "18-30"): 5, ("blind", "31-50"): 4, ("blind", "51-70"): 6,
+             ("sighted", "18-30"): 6, ("sighted", "31-50"): 5, ("sighted", "51-70"): 4}
+    rows = []
+    k = 0
+    for (group, age), n in sizes.items():
+        for _ in range(n):
+            k += 1
+            u = rng.normal(0, 0.08)
+            for a, shape in enumerate(["circle", "square"]):
+                for b, timing in enumerate(["fast", "medium", "slow"]):
+                    mu = 0.55 + 0.08 * (group == "blind") - 0.04 * (age == "51-70") \
+                        + 0.06 * a + 0.05 * b + 0.04 * a * b * (group == "blind")
+                    for _ in range(2):
+                        y = round(float(mu + u + rng.normal(0, 0.06 + 0.02 * b)), 4)
+                        rows.append([pid(k - 1), group, age, shape, timing, y])
+    df = pd.DataFrame(rows, columns=["participant", "group", "age", "shape", "timing", "rate"])
+    # participant 07 has one of the two values of a cell missing: afex's mean of the cell
+    # is missing, and it drops the participant with a message
+    cell = df.index[(df["participant"] == "07") & (df["shape"] == "square")
+                    & (df["timing"] == "slow")]
+    df.loc[cell[0], "rate"] = np.nan
+    return df
+
+
+def trials_items() -> pd.DataFrame:
+    rng = np.random.Generator(np.random.PCG64(1010))
+    item_u = rng.normal(0, 0.7, size=16)
+    rows = []
+    for i in range(20):
+        u = rng.normal(0, 1.0)
+        for j in range(16):
+            display = "static" if j % 2 == 0 else "dynamic"
+            for timing in ("fixed", "varied"):
+                eta = 0.6 + u + item_u[j] + 0.7 * (display == "static") \
+                    - 0.5 * (timing == "varied")
+                rows.append((pid(i), f"i{j + 1:02d}", display, timing,
+                             int(rng.random() < 1 / (1 + np.exp(-eta)))))
+    return pd.DataFrame(rows, columns=["participant", "item", "display", "timing", "correct"])
+
+
 DATASETS = {"oneway_sphericity": oneway_sphericity, "seed000_2x2": seed000_2x2,
             "grid_3x4": grid_3x4, "threeway": threeway, "missing_cell": missing_cell,
-            "ratings": ratings, "trials_glmm": trials_glmm}
+            "ratings": ratings, "trials_glmm": trials_glmm, "mixed_group_soa": mixed_group_soa,
+            "mixed_2b2w": mixed_2b2w, "trials_items": trials_items}
 
 
 def main() -> None:

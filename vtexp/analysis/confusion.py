@@ -152,32 +152,87 @@ def information_transfer(trials: pd.DataFrame, by: list[str] | str | None = None
         ks = int((m.sum(axis=1) > 0).sum())
         kr = int((m.sum(axis=0) > 0).sum())
         bias = (ks - 1) * (kr - 1) / (2 * n * np.log(2)) if n else np.nan
-        rows.append({**dict(zip(by, key)), "n": n, "k_stimuli": ks, "k_responses": kr,
-                     "H_stimulus": hs, "H_response": hr, "IT_bits": it,
-                     "relative_IT": it / hs if hs > 0 else np.nan, "bias_bits": bias,
-                     "IT_corrected": max(it - bias, 0.0),
-                     "n_recommended": 5 * len(labels) ** 2})
+        row = {**dict(zip(by, key)), "n": n, "k_stimuli": ks, "k_responses": kr,
+               "H_stimulus": hs, "H_response": hr, "IT_bits": it,
+               "relative_IT": it / hs if hs > 0 else np.nan, "bias_bits": bias,
+               "IT_corrected": max(it - bias, 0.0),
+               "n_recommended": 5 * len(labels) ** 2, "not_applicable": ""}
+        if ks < 2:
+            # One stimulus: nothing can be transmitted, the measure does not exist.
+            for c in ("H_stimulus", "IT_bits", "relative_IT", "bias_bits", "IT_corrected"):
+                row[c] = np.nan
+            row["not_applicable"] = (f"only one stimulus ({labels[int(np.argmax(m.sum(axis=1)))]})"
+                                     " was presented: there is no uncertainty to transmit")
+        rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _weights(k: int, kind: str) -> np.ndarray:
+    i = np.arange(k)
+    d = np.abs(i[:, None] - i[None, :]) / max(k - 1, 1)
+    if kind == "linear":
+        return 1 - d
+    if kind == "quadratic":
+        return 1 - d ** 2
+    raise InputError(f"kappa weights must be 'linear' or 'quadratic', not {kind!r}")
+
+
+def _weighted_kappa(m: np.ndarray, w: np.ndarray) -> tuple[float, float]:
+    """Cohen's (1968) weighted kappa and its large-sample SE (Fleiss, Cohen & Everitt 1969).
+
+    ``w`` are agreement weights (1 on the diagonal). Equals statsmodels'
+    ``cohens_kappa(table, weights=...)`` (tested).
+    """
+    n = m.sum()
+    p = m / n
+    r, c = p.sum(axis=1), p.sum(axis=0)
+    pe = float(r @ w @ c)
+    po = float((w * p).sum())
+    if pe == 1:
+        return np.nan, np.nan
+    k = (po - pe) / (1 - pe)
+    wr = w @ c                       # w̄_i.
+    wc = r @ w                       # w̄_.j
+    term = (p * (w - (wr[:, None] + wc[None, :]) * (1 - k)) ** 2).sum()
+    var = (term - (k - pe * (1 - k)) ** 2) / (n * (1 - pe) ** 2)
+    return float(k), float(np.sqrt(max(var, 0.0)))
 
 
 def agreement(trials: pd.DataFrame, by: list[str] | str | None = None, *,
               stimulus: str = "correct_answer", response: str = "answer",
-              labels: list[str] | None = None) -> pd.DataFrame:
+              labels: list[str] | None = None, weights: str | None = None) -> pd.DataFrame:
     """Accuracy and Cohen's kappa between stimulus and response, per condition.
 
     Kappa (Cohen 1960) is the accuracy above what the response frequencies
     would give by chance: ``(p_o − p_e) / (1 − p_e)``, with its large-sample
-    standard error (Fleiss, Cohen & Everitt 1969) and a 95 % Wald interval.
-    The values equal ``statsmodels.stats.inter_rater.cohens_kappa`` on the
-    same table (tested).
+    standard error (Fleiss, Cohen & Everitt 1969) and a 95 % Wald interval,
+    cut to kappa's range [−1, 1] (``kappa_ci_clipped`` says when). For ordered
+    answers (a rating, an intensity) ``weights="linear"`` or ``"quadratic"``
+    gives Cohen's (1968) weighted kappa, partial credit for near misses in the
+    order of ``labels``. The values equal
+    ``statsmodels.stats.inter_rater.cohens_kappa`` on the same table (tested).
+    With one stimulus presented, chance agreement equals the accuracy and kappa
+    is not defined: NaN with the reason in ``not_applicable``.
     """
     by = [by] if isinstance(by, str) else list(by or [])
     labels, matrices = _matrices(trials, stimulus, response, by, labels)
+    w = _weights(len(labels), weights) if weights else None
     rows = []
     for key, m in matrices:
-        k, se = _kappa(m)
-        rows.append({**dict(zip(by, key)), "n": int(m.sum()),
-                     "accuracy": np.trace(m) / m.sum(), "kappa": k, "kappa_se": se,
-                     "kappa_ci_low": k - 1.959963984540054 * se,
-                     "kappa_ci_high": k + 1.959963984540054 * se})
+        k, se = _kappa(m) if w is None else _weighted_kappa(m, w)
+        ks = int((m.sum(axis=1) > 0).sum())
+        lo, hi = k - 1.959963984540054 * se, k + 1.959963984540054 * se
+        row = {**dict(zip(by, key)), "n": int(m.sum()),
+               "accuracy": np.trace(m) / m.sum(), "kappa": k, "kappa_se": se,
+               "kappa_ci_low": max(lo, -1.0), "kappa_ci_high": min(hi, 1.0),
+               "kappa_ci_clipped": bool(lo < -1 or hi > 1), "weights": weights or "none",
+               "not_applicable": ""}
+        if ks < 2 or not np.isfinite(k):
+            for c in ("kappa", "kappa_se", "kappa_ci_low", "kappa_ci_high"):
+                row[c] = np.nan
+            row["kappa_ci_clipped"] = False
+            row["not_applicable"] = ("only one stimulus was presented: chance agreement equals "
+                                     "the accuracy, so kappa is not defined" if ks < 2 else
+                                     "every answer is the same: chance agreement is 1")
+        rows.append(row)
     return pd.DataFrame(rows)

@@ -1,7 +1,9 @@
 """Figures of the report, drawn with matplotlib (Agg) and returned as PNG bytes.
 
 Each function takes a tidy table that an analysis function returned and only
-draws it: no statistics are computed here.
+draws it: no statistics are computed here. The tests measure the figures as
+they are saved (tests/report_render.py: no text on text, legends off the data,
+cells large enough to read).
 """
 
 from __future__ import annotations
@@ -28,18 +30,25 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
-def _percent(ax, dv: str) -> None:
+def _y_axis(ax, dv: str, scale: dict[int, str] | None = None) -> None:
+    """Rates as percentages; a rating scale's points with their words, end to end."""
     if dv == "rate":
         ax.set_ylim(0, 1.05)
         ax.yaxis.set_major_formatter(lambda v, _: f"{v * 100:.0f}%")
+    elif scale:
+        points = sorted(scale)
+        ax.set_ylim(points[0] - 0.3, points[-1] + 0.3)
+        ax.set_yticks(points, [f"{v} {scale[v]}".strip() for v in points], fontsize=8)
 
 
 def rate_by_condition(measures: pd.DataFrame, dv: str, x: str, trace: str | None,
-                      ylabel: str) -> bytes:
+                      ylabel: str, *, scale: dict[int, str] | None = None) -> bytes:
     """Mean of the participants' values per condition, ± 1 SE across participants.
 
     Seed 000 Fig. 11 (recognition rate per mode) in line form: x axis ``x``,
-    one line per level of ``trace``.
+    one line per level of ``trace``, the legend outside the axes (to the
+    right) so that it never covers a line. ``scale`` (a rating scale's points
+    and their words) labels the y axis with the scale.
     """
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -60,72 +69,100 @@ def rate_by_condition(measures: pd.DataFrame, dv: str, x: str, trace: str | None
     ax.set_xticks(range(len(xs)), xs, rotation=30 if len(xs) > 5 else 0)
     ax.set_xlabel(x)
     ax.set_ylabel(f"{ylabel} (mean ± SE)")
-    _percent(ax, dv)
+    _y_axis(ax, dv, scale)
     if trace:
-        ax.legend(title=trace, fontsize=8, ncol=2 if len(groups) > 4 else 1)
+        ax.legend(title=trace, fontsize=8, ncol=2 if len(groups) > 12 else 1,
+                  loc="upper left", bbox_to_anchor=(1.02, 1), borderaxespad=0)
     ax.grid(axis="y", alpha=0.3)
     return _png(fig)
 
 
-def per_participant_lines(measures: pd.DataFrame, dv: str, x: str, ylabel: str) -> bytes:
+def per_participant_lines(measures: pd.DataFrame, dv: str, x: str, ylabel: str, *,
+                          trace: str | None = None,
+                          scale: dict[int, str] | None = None) -> bytes:
     """One line per participant across the levels of ``x`` (seed 000 Figs. 12–13).
 
-    Each participant's value at a level is their mean over the other factors;
-    the bold line is the mean of the participants.
+    With ``trace``, one panel per level of it: averaging over a factor whose
+    levels pull the measure in opposite directions (circle rated +2, rectangle
+    −2) would draw a flat line that no participant gave. Each participant's
+    value at a level is their mean over the remaining factors; the bold line
+    is the mean of the participants.
     """
     plt = _plt()
-    per = measures.groupby(["participant", x], observed=True)[dv].mean().reset_index()
     xs = [str(v) for v in measures[x].cat.categories] if hasattr(measures[x], "cat") else \
         sorted(measures[x].astype(str).unique())
     pos = {v: i for i, v in enumerate(xs)}
-    fig, ax = plt.subplots(figsize=(7, 4))
+    panels = [(None, measures)] if not trace else \
+        [(k, g) for k, g in measures.groupby(trace, observed=True, sort=True)]
+    fig, axes = plt.subplots(1, len(panels), figsize=(max(7.0, 4.2 * len(panels)), 4),
+                             squeeze=False, sharey=True)
     cmap = plt.get_cmap("tab20")
-    for k, (p, s) in enumerate(per.groupby("participant", observed=True)):
-        ax.plot([pos[str(v)] for v in s[x]], s[dv], marker=".", linewidth=1, alpha=0.8,
-                color=cmap(k % 20), label=f"sub-{p}")
-    mean = per.groupby(x, observed=True)[dv].mean()
-    ax.plot([pos[str(v)] for v in mean.index], mean.to_numpy(), color="black", linewidth=3,
-            label="mean")
-    ax.set_xticks(range(len(xs)), xs, rotation=30 if len(xs) > 5 else 0)
-    ax.set_xlabel(x)
-    ax.set_ylabel(ylabel)
-    _percent(ax, dv)
-    ax.legend(fontsize=7, ncol=2, bbox_to_anchor=(1.02, 1), loc="upper left")
-    ax.grid(axis="y", alpha=0.3)
+    for ax, (name, sub) in zip(axes[0], panels):
+        per = sub.groupby(["participant", x], observed=True)[dv].mean().reset_index()
+        for k, (p, s) in enumerate(per.groupby("participant", observed=True)):
+            ax.plot([pos[str(v)] for v in s[x]], s[dv], marker=".", linewidth=1, alpha=0.8,
+                    color=cmap(k % 20), label=f"sub-{p}")
+        mean = per.groupby(x, observed=True)[dv].mean()
+        ax.plot([pos[str(v)] for v in mean.index], mean.to_numpy(), color="black",
+                linewidth=3, label="mean")
+        ax.set_xticks(range(len(xs)), xs, rotation=30 if len(xs) > 5 else 0)
+        ax.set_xlabel(x)
+        if name is not None:
+            ax.set_title(f"{trace} {name}", fontsize=9)
+        _y_axis(ax, dv, scale)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0][0].set_ylabel(ylabel)
+    axes[0][-1].legend(fontsize=7, ncol=2, bbox_to_anchor=(1.02, 1), loc="upper left")
     return _png(fig)
 
 
 def confusion_heatmaps(confusion: pd.DataFrame, by: list[str]) -> bytes:
-    """Row-normalised confusion matrices, one panel per condition, proportions printed."""
+    """Row-normalised confusion matrices, one panel per condition, proportions printed.
+
+    The panel grows with the number of categories (about 0.3 inch a row, so a
+    26 × 26 letter matrix is readable), panels per row shrink accordingly, and
+    titles are wrapped to the panel's width so that neighbours do not overlap.
+    """
+    import textwrap
+
     plt = _plt()
     groups = [((), confusion)] if not by else list(confusion.groupby(by, observed=True))
     n = len(groups)
-    cols = min(4, n)
+    k = confusion["stimulus"].nunique() if "stimulus" in confusion else 4
+    side = max(3.0, 0.32 * k)                     # inches per panel
+    cols = max(1, min(4, n, int(14 // side)))
     rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols + 1.2, 3.1 * rows), squeeze=False)
-    fig.subplots_adjust(hspace=0.55, wspace=0.08)
+    fontsize = 7 if k <= 12 else 5.5
+    fig, axes = plt.subplots(rows, cols, figsize=(side * cols + 1.6, (side + 0.9) * rows),
+                             squeeze=False)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
-    for k, (ax, (key, g)) in enumerate(zip(axes.ravel(), groups)):
-        first_col, bottom = k % cols == 0, k + cols >= n
+    for i, (ax, (key, g)) in enumerate(zip(axes.ravel(), groups)):
+        first_col, bottom = i % cols == 0, i + cols >= n
         m = g.pivot_table(index="stimulus", columns="response", values="proportion",
                           observed=False, dropna=False)
         im = ax.imshow(m.to_numpy(dtype=float), vmin=0, vmax=1, cmap="Blues")
         labels = [str(v) for v in m.columns]
-        ax.set_xticks(range(len(labels)), labels, rotation=45, ha="right", fontsize=7)
+        ax.set_xticks(range(len(labels)), labels, rotation=45 if k <= 12 else 90,
+                      ha="right" if k <= 12 else "center", fontsize=fontsize)
         ax.set_yticks(range(len(m.index)), [str(v) for v in m.index] if first_col else [],
-                      fontsize=7)
-        for i in range(m.shape[0]):
-            for j in range(m.shape[1]):
-                v = m.iat[i, j]
-                if v == v:
-                    ax.text(j, i, f"{v * 100:.0f}", ha="center", va="center", fontsize=7,
+                      fontsize=fontsize)
+        for a in range(m.shape[0]):
+            for b in range(m.shape[1]):
+                v = m.iat[a, b]
+                if v == v and (k <= 12 or v >= 0.005):
+                    ax.text(b, a, f"{v * 100:.0f}", ha="center", va="center",
+                            fontsize=fontsize - (1 if k > 12 else 0),
                             color="white" if v > 0.6 else "black")
         key = key if isinstance(key, tuple) else (key,)
-        ax.set_title(", ".join(f"{f} {v}" for f, v in zip(by, key)) or "all trials", fontsize=9)
+        title = ", ".join(f"{f} {v}" for f, v in zip(by, key)) or "all trials"
+        ax.set_title("\n".join(textwrap.wrap(title, width=max(12, int(side * 9)))),
+                     fontsize=9)
         if bottom:
             ax.set_xlabel("response", fontsize=8)
         if first_col:
             ax.set_ylabel("stimulus", fontsize=8)
-    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.6, label="proportion of the row")
+    fig.tight_layout(rect=(0, 0, 0.9, 1))
+    cax = fig.add_axes((0.92, 0.25, 0.02, 0.5))
+    fig.colorbar(im, cax=cax, label="proportion of the row")
     return _png(fig)

@@ -83,7 +83,9 @@ def write_rate_report(trials: pd.DataFrame, sessions: list[SessionData], out: Pa
 # --------------------------------------------------------------------------- full report
 
 _PERCENT_TABLES = ("rates_by", "recognition_table")
-_LABELS = {"df1": "df1", "df2": "df2", "F": "F", "p": "p", "pes": "η²p", "ges": "η²G",
+_LABELS = {"df1": "df1", "df2": "df2", "F": "F", "p": "p", "pes": "η²p",
+           "pes_ci90_low": "η²p 90% CI low", "pes_ci90_high": "η²p 90% CI high", "ges": "η²G",
+           "dz_ci95_low": "dz 95% CI low", "dz_ci95_high": "dz 95% CI high",
            "mauchly_W": "Mauchly W", "mauchly_p": "Mauchly p", "eps_gg": "ε GG",
            "p_gg": "p GG", "eps_hf": "ε HF", "p_hf": "p HF", "n": "n"}
 
@@ -98,13 +100,30 @@ td:first-child, th:first-child { text-align: left; }
 .alarm h2 { color: #c00; margin-top: 0.2em; }
 .note { color: #555; font-size: 0.9em; }
 img { max-width: 100%; }
+.tablewrap { overflow-x: auto; max-width: 100%; }
+td.na { color: #777; font-style: italic; }
 ul.apa li { margin: 0.2em 0; }
 """
 
 
+NOT_APPLICABLE = "n/a"
+
+EFFECT_SIZE_NOTE = (
+    "Intervals of effect sizes: η²p has a two-sided 90% interval from the noncentral F "
+    "distribution (Steiger 2004; it excludes 0 exactly when the F test's p < .05), in the "
+    "tables on the df of the table and in the sentences on the df printed there (corrected "
+    "by ε where a correction is named); dz has a two-sided 95% interval from the noncentral "
+    "t distribution. Both as R's effectsize package computes them "
+    "(vtexp/analysis/effect_sizes.py).")
+
+
 def _cell(v, col: str, percent: bool) -> str:
     if v is None or v is pd.NA or (isinstance(v, float) and np.isnan(v)):
-        return ""
+        # an undefined measure is never a number (the reason is in the table's
+        # not_applicable column or the note under it)
+        return NOT_APPLICABLE
+    if isinstance(v, (float, np.floating)) and np.isinf(v):
+        return NOT_APPLICABLE
     if isinstance(v, (float, np.floating)):
         if percent and col not in ("n_trials", "n_correct", "n_participants", "n"):
             return f"{v * 100:.1f}%"
@@ -132,7 +151,8 @@ def html_table(name: str, df: pd.DataFrame) -> str:
         body.append("<tr>" + "".join(
             f"<td>{html.escape(_cell(v, str(c), percent and str(c) in _rate_cols(df)))}</td>"
             for v, c in zip(row, df.columns)) + "</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+    return (f"<div class='tablewrap'><table><thead><tr>{head}</tr></thead>"
+            f"<tbody>{''.join(body)}</tbody></table></div>")
 
 
 def _rate_cols(df: pd.DataFrame) -> set[str]:
@@ -153,10 +173,10 @@ def md_table(name: str, df: pd.DataFrame) -> str:
 
 _SECTIONS = [
     ("rates_by_condition", "Recognition rate per condition (mean of participants ± SE)"),
-    ("recognition_table", "Recognition rate by {rows} and {columns} (seed 001 Table 1 layout)"),
+    ("recognition_table", "Recognition rate by {rows} and {columns}"),
     ("rates_by_participant", "Recognition rate per participant (all conditions)"),
     ("anova", "Repeated-measures ANOVA"),
-    ("simple_effects", "Simple effects (seed 000 Table 3)"),
+    ("simple_effects", "Simple effects"),
     ("posthoc", "Paired comparisons"),
     ("friedman", "Friedman test"),
     ("wilcoxon", "Wilcoxon signed-rank comparisons"),
@@ -167,6 +187,8 @@ _SECTIONS = [
 
 
 def _title_of(key: str, a) -> str:
+    if key in a.titles:
+        return a.titles[key]
     for prefix, title in _SECTIONS:
         if key == prefix or key.startswith(prefix + "_"):
             if a.spec.table:
@@ -188,7 +210,6 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
     import html
 
     from . import figures
-    from .pipeline import MEASURE_LABEL
 
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
@@ -202,20 +223,24 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
 
     figs: list[tuple[str, str, bytes]] = []
     T = a.tables
-    if a.spec.figure and "figure_per_participant" in T:
-        fs = a.spec.figure
-        m = T["figure_per_participant"].copy()
-        for col in [fs.x] + ([fs.trace] if fs.trace else []):
+    for i, fd in enumerate(a.figures):
+        if fd.key not in T or T[fd.key].empty:
+            continue
+        m = T[fd.key].copy()
+        for col in [fd.x] + ([fd.trace] if fd.trace else []):
             m[col] = pd.Categorical(m[col].astype(str),
                                     categories=[str(v) for v in a.levels.get(col, [])] or None)
-        label = MEASURE_LABEL[fs.dv]
-        figs.append(("rates", f"{label.capitalize()} by {fs.x}"
-                     + (f" and {fs.trace}" if fs.trace else "") + " (mean ± SE across "
-                     "participants; seed 000 Fig. 11)",
-                     figures.rate_by_condition(m, fs.dv, fs.x, fs.trace, label)))
-        figs.append(("participants", f"{label.capitalize()} by {fs.x}, one line per "
-                     "participant (seed 000 Figs. 12–13)",
-                     figures.per_participant_lines(m, fs.dv, fs.x, label)))
+        what = fd.label[:1].upper() + fd.label[1:]
+        n = f"_{i + 1}" if i else ""
+        figs.append((f"rates{n}", f"{what}{fd.where_text} by {fd.x}"
+                     + (f" and {fd.trace}" if fd.trace else "") + " (mean ± SE across "
+                     "participants)",
+                     figures.rate_by_condition(m, fd.dv, fd.x, fd.trace, fd.label,
+                                               scale=fd.scale)))
+        figs.append((f"participants{n}", f"{what}{fd.where_text} by {fd.x}, one line per "
+                     "participant" + (f", one panel per {fd.trace}" if fd.trace else ""),
+                     figures.per_participant_lines(m, fd.dv, fd.x, fd.label, trace=fd.trace,
+                                                   scale=fd.scale)))
     if "confusion" in T:
         figs.append(("confusion", "Confusion matrices (rows: shape presented; columns: "
                      "answer; % of the row)",
@@ -227,8 +252,9 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
 
     mismatch = a.sessions[a.sessions["checksum"] == "MISMATCH"]
     unclosed = a.sessions[a.sessions["status"] != "completed"]
-    order = [k for k in T if k not in ("confusion", "figure_per_participant",
-                                       "information_transfer_all", "agreement_all")
+    order = [k for k in T if k not in ("confusion", "information_transfer_all",
+                                       "agreement_all")
+             and not k.startswith("figure_per_participant")
              and not (k.startswith("rates_by_") and k not in ("rates_by_condition",
                                                               "rates_by_participant"))]
 
@@ -272,6 +298,10 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
     if a.notes:
         h.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in a.notes)
                  + "</ul>")
+    h.append("<p class='note'>n/a: not applicable — the measure is undefined there (the "
+             "reason is in the row's not_applicable column; Mauchly's test and ε need an "
+             "effect with more than one df; dz needs paired values).</p>")
+    h.append(f"<p class='note'>{html.escape(EFFECT_SIZE_NOTE)}</p>")
     h.append("<p class='note'>Repeated-measures ANOVA on participants' cell means (afex::aov_ez "
              "conventions: Mauchly's test, Greenhouse–Geisser and Huynh–Feldt ε, partial and "
              "generalised η²). Simple effects: 'separate' = one ANOVA per level with its own "
@@ -301,6 +331,7 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
         md += [f"## {_title_of(key, a)}", "", md_table(key, T[key]), ""]
     if a.notes:
         md += ["## Notes", ""] + [f"- {n}" for n in a.notes] + [""]
+    md += [EFFECT_SIZE_NOTE, ""]
     md_path = out / "report.md"
     md_path.write_text("\n".join(md), encoding="utf-8")
     files["markdown"] = md_path

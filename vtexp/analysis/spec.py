@@ -38,6 +38,11 @@ class AnovaSpec(Model):
     where: dict[str, str | list[str]] = Field(
         default_factory=dict, description="only the trials at these levels, e.g. {display: "
                                           "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
+    between: list[str] = Field(
+        default_factory=list, description="between-participant factors: columns of the "
+                                          "participants table (participants.tsv), e.g. group")
+    observed: list[str] = Field(default_factory=list, description="factors measured, not "
+                                                                  "manipulated (η²G only)")
 
 
 class SimpleEffectsSpec(Model):
@@ -48,6 +53,9 @@ class SimpleEffectsSpec(Model):
     dv: Measure = "rate"
     within: list[str] | None = None
     method: Literal["separate", "pooled", "both"] = "both"
+    between: list[str] = Field(
+        default_factory=list, description="between-participant factors: columns of the "
+                                          "participants table (participants.tsv), e.g. group")
     where: dict[str, str | list[str]] = Field(
         default_factory=dict, description="only the trials at these levels, e.g. {display: "
                                           "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
@@ -60,10 +68,16 @@ class PosthocSpec(Model):
     by: str | None = None
     dv: Measure = "rate"
     within: list[str] | None = None
-    padjust: Literal["holm", "bonferroni"] = "holm"
+    padjust: Literal["holm", "bonferroni", "BH", "fdr", "sidak", "none"] = "holm"
+    error: Literal["paired", "pooled"] = Field(
+        "paired", description="paired: per-participant tests; pooled: the ANOVA model's "
+                              "error (emmeans)")
     where: dict[str, str | list[str]] = Field(
         default_factory=dict, description="only the trials at these levels, e.g. {display: "
                                           "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
+    between: list[str] = Field(
+        default_factory=list, description="between-participant factors: columns of the "
+                                          "participants table (participants.tsv), e.g. group")
 
 
 class TableSpec(Model):
@@ -96,14 +110,24 @@ class MixedModelSpec(Model):
 
     factors: list[str] | None = None
     interactions: bool = False
+    items: str | None = Field(None, description="a factor whose levels are the stimulus items "
+                                                "(e.g. the letter), for a crossed random "
+                                                "intercept per item")
+    n_quad: int = Field(1, ge=1, le=50, description="1 = Laplace (glmer's default); more = "
+                                                    "adaptive Gauss–Hermite quadrature nodes "
+                                                    "(only without items)")
 
 
 class FigureSpec(Model):
-    """Rate per condition (x axis ``x``, one line per level of ``trace``)."""
+    """A measure per condition (x axis ``x``, one line per level of ``trace``): the mean
+    of the participants ± SE, and one line per participant (one panel per ``trace``)."""
 
     x: str
     trace: str | None = None
     dv: Measure = "rate"
+    where: dict[str, str | list[str]] = Field(
+        default_factory=dict, description="only these rows, e.g. {question: turns} for one "
+                                          "question of several")
 
 
 class AnalysisSpec(Model):
@@ -116,7 +140,14 @@ class AnalysisSpec(Model):
     confusion: ConfusionSpec | None = None
     ordinal: list[OrdinalSpec] = Field(default_factory=list)
     mixed_model: MixedModelSpec | None = None
-    figure: FigureSpec | None = None
+    figure: FigureSpec | list[FigureSpec] | None = Field(
+        None, description="a figure, or a list of them (e.g. one per question)")
+
+    def figures(self) -> list[FigureSpec]:
+        """The declared figures as a list (``figure:`` may be one or a list)."""
+        if self.figure is None:
+            return []
+        return list(self.figure) if isinstance(self.figure, list) else [self.figure]
 
     @model_validator(mode="after")
     def _distinct(self) -> Self:
@@ -154,17 +185,36 @@ class AnalysisSpec(Model):
             refs += [(f"ordinal[{i}].where", f) for f in o.where]
         if self.mixed_model:
             refs += [("mixed_model.factors", f) for f in self.mixed_model.factors or []]
-        if self.figure:
-            refs += [("figure.x", self.figure.x)]
-            refs += [("figure.trace", self.figure.trace)] if self.figure.trace else []
+            refs += [("mixed_model.items", self.mixed_model.items)] if self.mixed_model.items \
+                else []
+        many = isinstance(self.figure, list)
+        for i, f in enumerate(self.figures()):
+            at = f"figure[{i}]" if many else "figure"
+            refs += [(f"{at}.x", f.x)]
+            refs += [(f"{at}.trace", f.trace)] if f.trace else []
+            refs += [(f"{at}.where", k) for k in f.where]
         return refs
+
+    def between_factors(self) -> list[str]:
+        """Every between-participant factor the analyses name (participants' properties)."""
+        out: list[str] = []
+        for a in [*self.anova, *self.simple_effects, *self.posthoc]:
+            out += [f for f in a.between if f not in out]
+        return out
 
     def unknown_factors(self, factors: list[str]) -> list[str]:
         """Messages for every factor name that is not one of ``factors``."""
-        # 'question' is a column too: where: {question: NAME} picks one question's rows.
+        # 'question' is a column too: where: {question: NAME} picks one question's rows;
+        # between factors are participants' properties, checked against participants.tsv.
+        between = self.between_factors()
+        for i, a in enumerate(self.anova):
+            for f in a.observed:
+                if f not in a.between and f not in (a.within or factors):
+                    return [f"analysis.anova[{i}].observed: {f!r} is not one of its factors"]
         return [f"analysis.{where}: {name!r} is not a factor of this experiment (factors: "
                 f"{', '.join(factors)})" for where, name in self.references()
-                if name not in factors and not (where.endswith(".where") and name == "question")]
+                if name not in factors and name not in between
+                and not (where.endswith(".where") and name == "question")]
 
 
 def check_factor_references(spec: AnalysisSpec | None, info: ValidationInfo) -> Any:
