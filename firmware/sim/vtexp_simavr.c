@@ -19,7 +19,9 @@
  *    "port" (the SMA gate ports A, C, L and G bit 0), "rx0"/"tx0" (a frame delimiter
  *    into / out of the UART; "rx0" with "n", the bytes since the previous one: the
  *    frame's length), "reset", "wall" (wall-clock ns, every 100 ms), and at
- *    the end "stack" (deepest stack, bytes) and "peek" (memory asked for); "clock" when
+ *    the end "tick_latency" (cycles from each Timer1 compare A to its handler: a
+ *    histogram, the worst, and the program counter and interrupt that held it off),
+ *    "stack" (deepest stack, bytes) and "peek" (memory asked for); "clock" when
  *    the firmware starts Timer1 (the cycle its device time 0 counts from);
  *  - injects line faults (each byte, both directions: dropped, altered, or followed by
  *    a random byte, with the given probabilities; seeded) and takes commands on stdin:
@@ -84,6 +86,12 @@ static uint64_t stats_rx, stats_tx, stats_dropped, stats_corrupted, stats_insert
 static int64_t max_lag_ns;
 static uint32_t *profile;                  /* samples per flash word address, --profile */
 static avr_cycle_count_t next_sample;
+/* Tick latency: cycles from Timer1 compare A raised to its handler entered (an edge
+ * is late by as much), a histogram and the worst case with what held the tick off */
+static avr_cycle_count_t lat_raised;
+static uint32_t lat_pc, lat_worst_pc;
+static uint8_t lat_running, lat_worst_vector;
+static uint64_t lat_hist[128], lat_worst, lat_worst_at;
 
 static double uniform(void)
 {
@@ -387,6 +395,35 @@ static void on_signal(int s)
     stopping = 1;
 }
 
+static void tick_pending(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    (void)param;
+    if (!value)
+        return;
+    lat_raised = avr->cycle;
+    lat_pc = avr->pc;
+    lat_running = avr->interrupts.running_ptr
+                      ? avr->interrupts.running[avr->interrupts.running_ptr - 1]->vector : 0;
+}
+
+static void tick_running(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    (void)param;
+    if (!value || !lat_raised)
+        return;
+    avr_cycle_count_t d = avr->cycle - lat_raised;
+    lat_hist[d < 127 ? d : 127]++;
+    if (d > lat_worst) {
+        lat_worst = d;
+        lat_worst_at = lat_raised;
+        lat_worst_pc = lat_pc;                /* where the CPU was when the tick was due */
+        lat_worst_vector = lat_running;       /* the interrupt it was in (0: none) */
+    }
+    lat_raised = 0;
+}
+
 static void no_sleep(avr_t *a, avr_cycle_count_t how_long)
 {
     (void)a;
@@ -469,6 +506,11 @@ int main(int argc, char **argv)
         avr->data[a] = PAINT;                 /* to measure the deepest stack */
 
     fix_spi_timing();
+    /* TIMER1_COMPA is vector 17 on the ATmega2560 */
+    avr_irq_register_notify(avr_get_interrupt_irq(avr, 17) + AVR_INT_IRQ_PENDING, tick_pending,
+                            NULL);
+    avr_irq_register_notify(avr_get_interrupt_irq(avr, 17) + AVR_INT_IRQ_RUNNING, tick_running,
+                            NULL);
     avr_register_io_write(avr, 0x81, tccr1b_write, NULL);    /* TCCR1B, shared with the timer */
     uint32_t f = 0;
     avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &f);
@@ -591,6 +633,19 @@ int main(int argc, char **argv)
         for (unsigned long k = 0; k < peek_len[i] && peek_addr[i] + k <= RAM_END; k++)
             fprintf(trace, "%02x", avr->data[peek_addr[i] + k]);
         fputs("\"}\n", trace);
+    }
+    if (trace) {
+        fprintf(trace, "{\"c\":%llu,\"e\":\"tick_latency\",\"worst\":%llu,\"worst_at\":%llu,"
+                       "\"worst_pc\":%u,\"worst_vector\":%u,\"hist\":{",
+                (unsigned long long)avr->cycle, (unsigned long long)lat_worst,
+                (unsigned long long)lat_worst_at, (unsigned)lat_worst_pc, lat_worst_vector);
+        const char *sep = "";
+        for (int d = 0; d < 128; d++)
+            if (lat_hist[d]) {
+                fprintf(trace, "%s\"%d\":%llu", sep, d, (unsigned long long)lat_hist[d]);
+                sep = ",";
+            }
+        fputs("}}\n", trace);
     }
     trace_line("\"e\":\"end\",\"rx\":%llu,\"tx\":%llu,\"dropped\":%llu,\"corrupted\":%llu,"
                "\"inserted\":%llu,\"max_lag_ns\":%lld",

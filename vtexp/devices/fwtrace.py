@@ -47,6 +47,11 @@ class Trace:
     wall: list[tuple[int, int]] = field(default_factory=list)
     end: dict = field(default_factory=dict)
     stack_used: int | None = None
+    #: cycles from each tick's timer compare to its interrupt handler: {cycles: count}
+    tick_latency: dict[int, int] = field(default_factory=dict)
+    #: the worst of them: cycles, the cycle the tick was due, and the program counter
+    #: (byte address) and interrupt vector (0: none) that held it off
+    tick_latency_worst: dict = field(default_factory=dict)
     peeks: dict[int, bytes] = field(default_factory=dict)
     clock_start: int | None = None      # cycle at which the firmware started Timer1
 
@@ -90,6 +95,10 @@ class Trace:
                     t.wall.append((c, d["ns"]))
                 elif e == "stack":
                     t.stack_used = d["used"]
+                elif e == "tick_latency":
+                    t.tick_latency = {int(k): v for k, v in d["hist"].items()}
+                    t.tick_latency_worst = {"cycles": d["worst"], "at": d["worst_at"],
+                                            "pc": d["worst_pc"], "vector": d["worst_vector"]}
                 elif e == "peek":
                     t.peeks[d["a"]] = bytes.fromhex(d["d"])
                 elif e == "end":

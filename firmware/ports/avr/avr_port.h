@@ -28,10 +28,26 @@ static inline uint32_t vt_clock_tick(void)
     return ++vt_ticks;
 }
 
+#endif
+
+/* Two 32-bit halves as one 64-bit time, without a shift: avr-gcc calls __ashldi3 for
+ * `(uint64_t)hi << 32`, a loop of ~130 cycles, which must not run with interrupts off. */
+static inline uint64_t vt_us64(uint32_t hi, uint32_t lo)
+{
+    union {
+        uint64_t v;
+        uint32_t w[2];                        /* little-endian: w[0] is the low half */
+    } u;
+    u.w[0] = lo;
+    u.w[1] = hi;
+    return u.v;
+}
+
+#ifndef VT_RUNNER
 /* In the tick interrupt, after vt_clock_tick(): the time at which Timer1 read c. */
 static inline uint64_t vt_clock_now_at(uint16_t c)
 {
-    return (((uint64_t)vt_tick_us_hi << 32) | vt_tick_us_lo) + (c >> 1);
+    return vt_us64(vt_tick_us_hi, vt_tick_us_lo) + (c >> 1);
 }
 #endif
 

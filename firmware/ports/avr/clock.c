@@ -18,7 +18,8 @@ volatile uint32_t vt_tick_us_lo, vt_tick_us_hi; /* the time of tick vt_ticks, us
                                                  * 32-bit additions are cheap in an interrupt */
 volatile uint8_t vt_out_event;
 
-static inline uint64_t tick_us(void) { return ((uint64_t)vt_tick_us_hi << 32) | vt_tick_us_lo; }
+/* Interrupts are off only while the tick's words are copied (a few cycles): a tick
+ * interrupt that waits for a 64-bit computation here would raise its edges late. */
 
 void vt_clock_init(uint16_t tick_us, uint16_t prepare_at)
 {
@@ -36,12 +37,14 @@ uint64_t vt_hal_now_us(void)
 {
     uint8_t sreg = SREG;
     cli();
-    uint64_t t = tick_us();
+    uint32_t lo = vt_tick_us_lo, hi = vt_tick_us_hi;
     uint16_t c = TCNT1;
     /* the counter has wrapped but the tick interrupt has not run yet */
-    if ((TIFR1 & _BV(OCF1A)) && c < VT_TICK_US)
-        t += VT_TICK_US;
+    uint8_t wrapped = (TIFR1 & _BV(OCF1A)) && c < VT_TICK_US;
     SREG = sreg;
+    uint64_t t = vt_us64(hi, lo);
+    if (wrapped)
+        t += VT_TICK_US;
     return t + (c >> 1);
 }
 
@@ -51,9 +54,9 @@ uint32_t vt_clock_tick_for(uint64_t t_us)
 {
     uint8_t sreg = SREG;
     cli();
-    uint32_t k = vt_ticks;
-    uint64_t base = tick_us();
+    uint32_t k = vt_ticks, lo = vt_tick_us_lo, hi = vt_tick_us_hi;
     SREG = sreg;
+    uint64_t base = vt_us64(hi, lo);
     if (t_us <= base)
         return k;
     uint64_t d = t_us - base;
@@ -68,9 +71,9 @@ uint64_t vt_clock_tick_time(uint32_t k)
 {
     uint8_t sreg = SREG;
     cli();
-    uint32_t now = vt_ticks;
-    uint64_t base = tick_us();
+    uint32_t now = vt_ticks, lo = vt_tick_us_lo, hi = vt_tick_us_hi;
     SREG = sreg;
+    uint64_t base = vt_us64(hi, lo);
     int32_t d = (int32_t)(k - now);
     return d >= 0 ? base + (uint32_t)d * VT_TICK_US : base - (uint32_t)(-d) * VT_TICK_US;
 }
