@@ -5,9 +5,8 @@ A staircase changes the level after each answer by a rule on the run of answers:
 - **transformed up-down** (Levitt 1971): the level goes *down* (harder) one step
   after ``n_down`` "yes" (or correct) answers in a row, and *up* one step after
   ``n_up`` "no" answers in a row; the run counters start again after each step.
-  The track converges on the level where the probability of going down equals that
-  of going up, :math:`p^{n_{down}} = 1 - (1-p)^{n_{up}}`; for ``n_up = 1``:
-  :math:`p = 0.5^{1/n_{down}}` (1-up-2-down: 70.7 %, 1-up-3-down: 79.4 %;
+  The track converges on the level where a step down is as likely as a step up;
+  for ``n_up = 1``: :math:`p^{n_{down}} = 1/2`, :math:`p = 0.5^{1/n_{down}}` (1-up-2-down: 70.7 %, 1-up-3-down: 79.4 %;
   Levitt 1971, Table I).
 - **weighted up-down** (Kaernbach 1991): one step each answer, with unequal steps.
   At equilibrium :math:`p\\,S_{down} = (1-p)\\,S_{up}`, so the target ``p`` is
@@ -40,19 +39,38 @@ import math
 from dataclasses import dataclass, field
 
 
-def target_probability(n_up: int, n_down: int) -> float:
-    """The probability of "yes" a transformed up-down staircase converges on.
+def _down_first(p: float, n_up: int, n_down: int) -> float:
+    """The probability that ``n_down`` yes in a row come before ``n_up`` no in a row."""
+    # Absorbing chain on the run counter (+k: k yes in a row, -k: k no in a row).
+    states = list(range(-(n_up - 1), n_down))
+    v = {r: 0.5 for r in states}
+    for _ in range(10000):
+        new = {}
+        for r in states:
+            up, down = max(r, 0) + 1, min(r, 0) - 1
+            new[r] = (p * (1.0 if up >= n_down else v[up])
+                      + (1 - p) * (0.0 if -down >= n_up else v[down]))
+        if max(abs(new[r] - v[r]) for r in states) < 1e-15:
+            v = new
+            break
+        v = new
+    return v[0]
 
-    Solves :math:`p^{n_{down}} = 1 - (1 - p)^{n_{up}}` (Levitt 1971, eq. for the
-    equilibrium) by bisection.
+
+def target_probability(n_up: int, n_down: int) -> float:
+    """The probability of "yes" a transformed up-down staircase converges on: where a
+    step down is as likely as a step up (Levitt 1971, Table I).
+
+    For ``n_up = 1`` that is :math:`p^{n_{down}} = 1/2`; in general the probability that
+    ``n_down`` yes in a row come before ``n_up`` no in a row is 1/2, solved by bisection.
 
     >>> round(target_probability(1, 2), 4)
     0.7071
     """
-    lo, hi = 1e-12, 1.0 - 1e-12
-    for _ in range(200):
+    lo, hi = 1e-9, 1.0 - 1e-9
+    for _ in range(100):
         mid = 0.5 * (lo + hi)
-        if mid ** n_down - (1.0 - (1.0 - mid) ** n_up) > 0:
+        if _down_first(mid, n_up, n_down) > 0.5:
             hi = mid
         else:
             lo = mid
