@@ -682,10 +682,12 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
         problem = _replay_adaptive(adaptive, rows[:done * per_trial], cols, trials)
         if problem:
             beh.close()
-            raise SessionError(f"{paths.beh_tsv}: {problem}. The log does not follow from the "
-                               "answers it holds (it was changed, or the experiment's procedure "
-                               "differs), so the session cannot be resumed; start a new session "
-                               "(the folder is left as it is)")
+            refusal = SessionError(f"{paths.beh_tsv}: {problem}. The log does not follow from "
+                                   "the answers it holds (it was changed, or the experiment's "
+                                   "procedure differs), so the session cannot be resumed; start "
+                                   "a new session (the folder is left as it is)")
+            refusal.final = True                 # no "to continue it" hint after this
+            raise refusal
     if len(rows) % per_trial:                        # a trial cut short between questions
         beh.truncate_rows(done * per_trial)
     events, erows, cut_ev = TsvLog.reopen(paths.events_tsv, EVENT_COLUMNS)
