@@ -35,6 +35,9 @@ class Condition:
     pattern: Pattern | None = field(default=None, repr=False)
     schedule: Schedule | None = field(default=None, repr=False)
     camera: bool = False                     # the stimulus is taken at each trial
+    adaptive_params: dict[str, Any] = field(default_factory=dict)   # sets: adaptive
+    #: with an adaptive procedure: the schedule at each level it may play
+    schedules: dict[float, Schedule] | None = field(default=None, repr=False)
 
     @property
     def label(self) -> str:
@@ -56,15 +59,18 @@ def enumerate_conditions(lx: LoadedExperiment) -> list[Condition]:
         levels = dict(zip(names, combo, strict=True))
         enc = dict(exp.encoding.params)
         cod = dict(exp.coding.params)
+        ada: dict[str, Any] = {}
         for n, lvl in levels.items():
             f = exp.factors[n]
             if f.sets == "coding":
                 cod.update(f.params_of(lvl))
             elif f.sets == "encoding":
                 enc.update(f.params_of(lvl))
+            elif f.sets == "adaptive":
+                ada.update(f.params_of(lvl))
         stimulus = levels[stim_factor] if stim_factor else next(iter(exp.stimuli))
         out.append(Condition(i, levels, stimulus, enc, cod,
-                             camera=exp.stimuli[stimulus].is_camera))
+                             camera=exp.stimuli[stimulus].is_camera, adaptive_params=ada))
     return out
 
 
@@ -119,6 +125,9 @@ def compile_conditions(lx: LoadedExperiment, profile: DeviceProfile | None = Non
         if not c.pattern.points:
             raise lx.error(f"stimulus {c.stimulus!r} gives an empty pattern on {profile.name} "
                            "(no shape found in the image)", ("stimuli", c.stimulus))
+        if exp.adaptive is not None:
+            _compile_levels(lx, c, profile)
+            continue
         c.schedule = code(lx, c.pattern, profile, c.coding_params)
         try:
             check_schedule(c.schedule, profile)
@@ -126,6 +135,28 @@ def compile_conditions(lx: LoadedExperiment, profile: DeviceProfile | None = Non
             where = _condition_keypath(lx, c)
             raise lx.error(f"condition {c.label}: unsafe stimulus: {e}", where) from None
     return conditions
+
+
+def _compile_levels(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) -> None:
+    """Code the condition at every level the adaptive procedure may play, each checked
+    against the device's safety limits before the session: a procedure can only
+    propose what was checked. ``c.schedule`` is the schedule at the first level."""
+    from .adaptive.spec import value_list
+    from .adaptive.track import _number
+
+    spec = lx.experiment.adaptive
+    c.schedules = {}
+    for v in value_list(spec.values):
+        params = {**c.coding_params, spec.variable: _number(v)}
+        try:
+            s = code(lx, c.pattern, profile, params)
+            check_schedule(s, profile)
+        except (UnsafeStimulus, InputError) as e:
+            raise lx.error(f"condition {c.label} at {spec.variable} = {v:g}: unsafe or "
+                           f"impossible on {profile.name}: {getattr(e, 'message', e)}",
+                           ("adaptive", "values")) from None
+        c.schedules[v] = s
+    c.schedule = next(iter(c.schedules.values()))
 
 
 def _check_camera_condition(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) -> None:

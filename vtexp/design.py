@@ -68,6 +68,8 @@ class Trial:
     repetition: int             # 1-based: which presentation of this condition (0: practice)
     practice: bool = False
     block: int = 0              # 1-based block number with order: blocked, else 0
+    proposed: float | None = None    # adaptive: the level the procedure asked for
+    presented: float | None = None   # adaptive: the level played (the nearest playable)
 
     @property
     def levels(self) -> dict[str, str]:

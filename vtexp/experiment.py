@@ -24,6 +24,7 @@ from pydantic import (AfterValidator, ConfigDict, Discriminator, Field, PrivateA
                       model_validator)
 from typing_extensions import Self
 
+from .adaptive.spec import AdaptiveSpec
 from .analysis.spec import AnalysisSpec, check_factor_references
 from .errors import InputError
 from .model import Model
@@ -284,12 +285,14 @@ class FactorSpec(Model):
     ``levels`` is a list of level names, or a mapping from level name to the
     parameters that level sets. ``sets`` says what the factor changes:
     ``stimulus`` (level names are stimulus names), ``coding`` or ``encoding``
-    (each level's mapping overrides those parameters), or ``none``.
+    (each level's mapping overrides those parameters), ``adaptive`` (each level's
+    mapping overrides the adaptive procedure's settings: interleaved tracks), or
+    ``none``.
     """
 
     levels: list[Annotated[str, Field(pattern=LABEL)]] | dict[
         Annotated[str, Field(pattern=LABEL)], dict[str, Any]]
-    sets: Literal["stimulus", "coding", "encoding", "none"] = "none"
+    sets: Literal["stimulus", "coding", "encoding", "adaptive", "none"] = "none"
     description: str = ""
 
     @model_validator(mode="after")
@@ -299,7 +302,7 @@ class FactorSpec(Model):
             raise ValueError("a factor needs at least one level")
         if len(set(names)) != len(names):
             raise ValueError("level names must be unique")
-        if self.sets in ("coding", "encoding") and not isinstance(self.levels, dict):
+        if self.sets in ("coding", "encoding", "adaptive") and not isinstance(self.levels, dict):
             raise ValueError(f"a factor that sets {self.sets} parameters needs levels as a "
                              "mapping: level name -> parameters")
         if self.sets in ("stimulus", "none") and isinstance(self.levels, dict):
@@ -473,6 +476,9 @@ class Experiment(Model):
         None, description="how a model participant answers (vtexp simulate, vtexp/observer)")
     presentation: PresentationSpec | None = Field(
         None, description="how the participant is told and asked: spoken (audio), text size")
+    adaptive: AdaptiveSpec | None = Field(
+        None, description="a coding parameter chosen trial by trial from the answers so far: "
+                          "staircase, QUEST or QUEST+ (vtexp/adaptive/spec.py)")
 
     @model_validator(mode="after")
     def _one_question_key(self) -> Self:
@@ -505,7 +511,7 @@ class Experiment(Model):
 
 RESERVED_COLUMNS = frozenset(
     "trial practice repetition block stimulus stim_file question answer correct_answer correct rt_s "
-    "replays stimulus_onset_ms stimulus_duration_ms n_pulses status started_at "
+    "replays stimulus_onset_ms stimulus_duration_ms n_pulses status started_at proposed presented "
     "experiment participant session".split())
 
 
@@ -555,7 +561,7 @@ def _check(lx: LoadedExperiment) -> None:
 
     exp = lx.experiment
     try:
-        DeviceProfile.load(exp.device)
+        profile = DeviceProfile.load(exp.device)
     except InputError as e:
         if e.path is None:                      # unknown name: point at the key
             raise lx.error(e.message, ("device",)) from None
@@ -637,6 +643,17 @@ def _check(lx: LoadedExperiment) -> None:
     for qi, q in enumerate(exp.asked()):
         _check_correct(lx, q, ("question",) if exp.question is not None else ("questions", qi))
     _check_camera(lx)
+    adaptive_factors = [n for n, f in exp.factors.items() if f.sets == "adaptive"]
+    if exp.adaptive is None and adaptive_factors:
+        raise lx.error("a factor sets the adaptive procedure's settings, but there is no "
+                       "'adaptive:' section", ("factors", adaptive_factors[0], "sets"))
+    if exp.adaptive is not None:
+        from .adaptive.track import check_adaptive
+
+        if any(s.is_camera for s in exp.stimuli.values()):
+            raise lx.error("an adaptive procedure needs stimuli that can be coded before the "
+                           "session (not camera stimuli)", ("adaptive",))
+        check_adaptive(lx, profile, cod_model)
 
 
 def _check_camera(lx: LoadedExperiment) -> None:

@@ -333,5 +333,5 @@ class TrialRecord(Model):
     stimulus_onset_ms: float | None = Field(None, description="device clock")
     stimulus_duration_ms: float | None = None
     n_pulses: int = 0
-    status: Literal["ok", "skipped", "device_error"] = "ok"
+    status: Literal["ok", "skipped", "device_error", "stopped"] = "ok"
     started_at: str = Field(description="wall clock, ISO 8601 with time zone")

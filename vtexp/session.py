@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Callable, Protocol
 
 from . import __version__
+from .adaptive.track import AdaptiveRun
 from .compile import Condition, compile_conditions
 from .design import Trial, trial_list
 from .devices.base import DeviceBase
@@ -243,16 +244,25 @@ EVENT_COLUMNS = ["trial", "play", "row", "col", "scheduled_onset_ms", "onset_ms"
                  "duration_ms", "level", "amplitude_v", "frequency_hz", "pulse_width_ms"]
 
 
-def trial_columns(factors: list[str], camera: bool = False) -> list[str]:
-    """The trial log's columns; ``stim_file`` after ``stimulus`` with camera stimuli."""
+def trial_columns(factors: list[str], camera: bool = False, adaptive: bool = False
+                  ) -> list[str]:
+    """The trial log's columns; ``stim_file`` after ``stimulus`` with camera stimuli,
+    ``proposed`` and ``presented`` with an adaptive procedure."""
     return (["trial", "practice", "repetition", "block", *factors, "stimulus",
-             *(["stim_file"] if camera else []), "question",
+             *(["stim_file"] if camera else []),
+             *(["proposed", "presented"] if adaptive else []), "question",
              "answer", "correct_answer", "correct", "rt_s", "replays", "stimulus_onset_ms",
              "stimulus_duration_ms", "n_pulses", "status", "started_at"])
 
 
 def has_camera(lx: LoadedExperiment) -> bool:
     return any(s.is_camera for s in lx.experiment.stimuli.values())
+
+
+def log_columns(lx: LoadedExperiment) -> list[str]:
+    """The trial log's columns for this experiment."""
+    return trial_columns(list(lx.experiment.factors), has_camera(lx),
+                         lx.experiment.adaptive is not None)
 
 
 def sidecar(lx: LoadedExperiment) -> dict:
@@ -271,6 +281,12 @@ def sidecar(lx: LoadedExperiment) -> dict:
                                       if f.params_of(lv) else lv) for lv in f.level_names}}
     cols.update({
         "stimulus": {"Description": "name of the stimulus in the experiment file"},
+        **({"proposed": {"Description": f"the level of {exp.adaptive.variable} the adaptive "
+                                        f"procedure ({exp.adaptive.procedure.kind}) asked for, "
+                                        "from the answers before this trial"},
+            "presented": {"Description": f"the level of {exp.adaptive.variable} played: the "
+                                         "nearest the device can play to the one proposed"}}
+           if exp.adaptive is not None else {}),
         **({"stim_file": {"Description": "camera stimuli: the frame taken at the trial (PNG), "
                                          "relative to the session folder; a live trial's "
                                          "record is the folder of the same name + '-live'"}}
@@ -289,7 +305,8 @@ def sidecar(lx: LoadedExperiment) -> dict:
         "stimulus_duration_ms": {"Description": "duration of the played schedule",
                                  "Units": "ms"},
         "n_pulses": {"Description": "number of actuator pulses in the stimulus"},
-        "status": {"Description": "ok, skipped, or device_error"},
+        "status": {"Description": "ok, skipped, device_error, or stopped (an adaptive track "
+                                  "had met its stop rule: nothing was played)"},
         "started_at": {"Description": "wall-clock start of the trial, ISO 8601"},
     })
     return {"TaskName": exp.title, "TaskDescription": exp.description.strip(),
@@ -379,6 +396,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                          f"device opened is {profile.name!r}", key="--device")
     conditions = conditions or compile_conditions(lx, profile)
     trials, seed = trial_list(exp, conditions, participant, session)
+    adaptive = AdaptiveRun.of(lx, conditions, seed)
     paths = SessionPaths.of(data_dir, exp.name, exp.task_label, participant, session)
     camera = _CameraTrials.of(lx, paths.dir, capture_prompt)
     who = f"session {session} of participant {participant}"
@@ -400,7 +418,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
             record, beh, events, done = _reopen(paths, lx, participant, session, trials, seed,
                                                 factors, info, conditions, device, responder,
                                                 command, run_info, force_device,
-                                                camera is not None)
+                                                camera is not None, adaptive)
         except BaseException:
             lock.release()
             raise
@@ -416,8 +434,13 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
         call_hook(responder, "instructions", exp.instructions.strip() or exp.asked()[0].prompt)
         todo = trials[done:] if max_trials is None else trials[done:done + max_trials]
         for trial in todo:
-            recs, plays = _run_trial_pausing(exp, trial, device, responder, on_device_error,
-                                             camera)
+            if adaptive is not None:
+                trial = _adaptive_trial(adaptive, trial)
+            if trial.condition.schedule is None and not trial.condition.camera:
+                recs, plays = _stopped_records(exp, trial), []      # its track had stopped
+            else:
+                recs, plays = _run_trial_pausing(exp, trial, device, responder,
+                                                 on_device_error, camera)
             # The device events first, the trial's row last: the row is what makes a
             # trial complete, so a trial cut short leaves no row and is played again.
             for i, rep in enumerate(plays):
@@ -429,10 +452,16 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                                    "amplitude_v": p.train.amplitude_v if p.train else None,
                                    "frequency_hz": p.train.frequency_hz if p.train else None,
                                    "pulse_width_ms": p.train.pulse_width_ms if p.train else None})
+            extra = ({"proposed": trial.proposed, "presented": trial.presented}
+                     if adaptive is not None else {})
             for rec in recs:                     # one row per question, the trial's last
-                beh.append({**{f: trial.levels[f] for f in factors},
+                beh.append({**{f: trial.levels[f] for f in factors}, **extra,
                             **rec.model_dump(exclude={"condition"} if camera else
                                              {"condition", "stim_file"})})
+            if adaptive is not None and trial.presented is not None:
+                for rec in recs:
+                    if rec.question == adaptive.question and rec.status == "ok":
+                        adaptive.record(trial, trial.presented, rec.answer, rec.correct_answer)
             result.records.extend(recs)
             record["n_trials_logged"] = trial.number
             for rec in recs:
@@ -530,7 +559,7 @@ def _create(paths: SessionPaths, lx, participant, session, trials, seed, conditi
         record = _new_record(lx, participant, session, trials, seed, conditions, info,
                              device.profile, responder, command, run_info, paths)
         write_json_atomic(staged.beh_json, sidecar(lx))
-        TsvLog(staged.beh_tsv, trial_columns(list(lx.experiment.factors), camera)).close()
+        TsvLog(staged.beh_tsv, log_columns(lx)).close()
         TsvLog(staged.events_tsv, EVENT_COLUMNS).close()
         write_json_atomic(staged.session_json, record)
         try:
@@ -541,8 +570,7 @@ def _create(paths: SessionPaths, lx, participant, session, trials, seed, conditi
             raise
         lock.move_to(paths.dir)
         fsync_dir(paths.dir.parent)
-        beh, _, _ = TsvLog.reopen(paths.beh_tsv, trial_columns(list(lx.experiment.factors),
-                                                               camera))
+        beh, _, _ = TsvLog.reopen(paths.beh_tsv, log_columns(lx))
         events, _, _ = TsvLog.reopen(paths.events_tsv, EVENT_COLUMNS)
         return lock, record, beh, events
     except BaseException:
@@ -577,7 +605,7 @@ def _maybe_break(exp, trial: Trial, trials: list[Trial], responder: Responder) -
 def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session: int,
             trials: list[Trial], seed: int,
             factors: list[str], info, conditions, device, responder, command, run_info: dict,
-            force_device: bool, camera: bool = False
+            force_device: bool, camera: bool = False, adaptive: AdaptiveRun | None = None
             ) -> tuple[dict, TsvLog, TsvLog, int]:
     """Check that a session can be resumed and reopen its logs; return how many trials it holds.
 
@@ -628,7 +656,7 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
     if not paths.beh_json.is_file():
         write_json_atomic(paths.beh_json, sidecar(lx))
         rebuilt.append(paths.beh_json.name)
-    cols = trial_columns(factors, camera)
+    cols = trial_columns(factors, camera, adaptive is not None)
     if _needs_header(paths.beh_tsv):
         if _has_rows(paths.events_tsv):
             raise SessionError(f"{paths.beh_tsv} is missing but {paths.events_tsv.name} holds "
@@ -650,6 +678,16 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
             raise SessionError(f"row {i + 1} of {paths.beh_tsv} does not match the planned "
                                f"trial {k}; the log cannot be resumed")
     done = len(rows) // per_trial
+    if adaptive is not None:
+        problem = _replay_adaptive(adaptive, rows[:done * per_trial], cols, trials)
+        if problem:
+            beh.close()
+            refusal = SessionError(f"{paths.beh_tsv}: {problem}. The log does not follow from "
+                                   "the answers it holds (it was changed, or the experiment's "
+                                   "procedure differs), so the session cannot be resumed; start "
+                                   "a new session (the folder is left as it is)")
+            refusal.final = True                 # no "to continue it" hint after this
+            raise refusal
     if len(rows) % per_trial:                        # a trial cut short between questions
         beh.truncate_rows(done * per_trial)
     events, erows, cut_ev = TsvLog.reopen(paths.events_tsv, EVENT_COLUMNS)
@@ -672,6 +710,45 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
             record[key] = run_info[key]
     write_json_atomic(paths.session_json, record)
     return record, beh, events, done
+
+
+def _adaptive_trial(adaptive: AdaptiveRun, trial: Trial) -> Trial:
+    """The trial at the level its track proposes now, or without a schedule if the track
+    has stopped."""
+    import dataclasses
+
+    c = trial.condition
+    if not trial.practice and adaptive.finished(trial):
+        return dataclasses.replace(trial, condition=dataclasses.replace(c, schedule=None))
+    p = adaptive.propose(trial)
+    variable = adaptive.spec.variable
+    cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
+                               coding_params={**c.coding_params, variable: p.presented})
+    return dataclasses.replace(trial, condition=cond, proposed=p.proposed,
+                               presented=p.presented)
+
+
+def _stopped_records(exp, trial: Trial) -> list[TrialRecord]:
+    """The rows of a trial whose adaptive track had met its stop rule: nothing played."""
+    return [TrialRecord(trial=trial.number, repetition=trial.repetition,
+                        practice=trial.practice, block=trial.block, stimulus=trial.stimulus,
+                        condition=trial.levels, question=q.name, answer=None,
+                        correct_answer=correct_answer(q, trial), correct=None,
+                        status="stopped", started_at=now_iso()) for q in exp.asked()]
+
+
+def _replay_adaptive(adaptive: AdaptiveRun, rows: list[list[str]], cols: list[str],
+                     trials: list[Trial]) -> str | None:
+    """Replay the logged answers through the procedure; what differs first, if anything."""
+    for i, row in enumerate(rows):
+        d = dict(zip(cols, row, strict=False))
+        if d.get("question") != adaptive.question:
+            continue
+        trial = trials[int(d["trial"]) - 1]
+        problem = adaptive.replay(trial, d)
+        if problem:
+            return f"row {i + 1} (trial {trial.number}): {problem}"
+    return None
 
 
 def _read_record(paths: SessionPaths) -> dict | None:

@@ -13,7 +13,8 @@ import io
 import numpy as np
 import pandas as pd
 
-__all__ = ["rate_by_condition", "per_participant_lines", "confusion_heatmaps"]
+__all__ = ["rate_by_condition", "per_participant_lines", "confusion_heatmaps",
+           "psychometric_curves"]
 
 
 def _plt():
@@ -165,4 +166,44 @@ def confusion_heatmaps(confusion: pd.DataFrame, by: list[str]) -> bytes:
     fig.tight_layout(rect=(0, 0, 0.9, 1))
     cax = fig.add_axes((0.92, 0.25, 0.02, 0.5))
     fig.colorbar(im, cax=cax, label="proportion of the row")
+    return _png(fig)
+
+
+def psychometric_curves(fits: pd.DataFrame, points: pd.DataFrame, variable: str,
+                        by: list[str] | None = None) -> bytes:
+    """One panel per participant (and ``by`` level): the proportion of yes at each level
+    played (marker area ∝ trials), the fitted function, and the threshold with its
+    interval (a bar at the function's height there)."""
+    from .psychometric import curve
+
+    plt = _plt()
+    keys = ["participant", *(by or [])]
+    n = len(fits)
+    cols = min(n, 3)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
+    lo = float(points["level"].min()) if len(points) else 0.0
+    hi = float(points["level"].max()) if len(points) else 1.0
+    xs = np.linspace(lo, hi, 300)
+    for ax, (_, f) in zip(axes.ravel(), fits.iterrows(), strict=False):
+        mine = points
+        for k in keys:
+            mine = mine[mine[k].astype(str) == str(f[k])]
+        ax.scatter(mine["level"], mine["proportion"], s=12 + 10 * mine["n"], alpha=0.5,
+                   color="#4477aa", edgecolor="none", label="answers")
+        ax.plot(xs, curve(f, xs), color="#222222", lw=1.5, label=f"{f['function']} fit")
+        y = float(curve(f, np.array([f["threshold"]]))[0])
+        ax.errorbar([f["threshold"]], [y], xerr=[[f["threshold"] - f["threshold_ci_low"]],
+                                                 [f["threshold_ci_high"] - f["threshold"]]],
+                    fmt="o", color="#cc3311", capsize=3, label="threshold, 95 % CI")
+        ax.set_ylim(-0.03, 1.03)
+        ax.set_title(", ".join(f"{k} {f[k]}" for k in keys), fontsize=9)
+        ax.set_xlabel(variable)
+        ax.set_ylabel("proportion yes")
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    handles, labels = axes.ravel()[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=3,
+               fontsize=8, frameon=False)
+    fig.tight_layout()
     return _png(fig)

@@ -21,7 +21,7 @@ from .load import SessionData
 from .ordinal import friedman, wilcoxon_pairwise
 from .posthoc import pairwise_tests
 from .rates import recognition_rates
-from .spec import AnalysisSpec, default_spec
+from .spec import AnalysisSpec, PsychometricSpec, default_spec
 
 __all__ = ["ExperimentAnalysis", "analyse_experiment", "participant_measures", "spec_for",
            "apa_anova", "eta2p_interval", "format_p"]
@@ -478,6 +478,21 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
         T["agreement"] = agreement(sub, by, labels=labels)
         T["information_transfer_all"] = information_transfer(sub, labels=labels)
         T["agreement_all"] = agreement(sub, labels=labels)
+    adaptive = loaded.get("adaptive")
+    if adaptive:
+        from .psychometric import fit_sentence, psychometric_fits
+        ps = spec.psychometric or PsychometricSpec()
+        fits, points = psychometric_fits(sub, adaptive, function=ps.function, guess=ps.guess,
+                                         lapse=ps.lapse, max_lapse=ps.max_lapse,
+                                         bootstrap=ps.bootstrap, by=ps.by)
+        T["psychometric_fit"] = fits
+        T["psychometric_points"] = points
+        res.titles["psychometric_fit"] = (f"Psychometric function of {adaptive['variable']} "
+                                          "per participant (maximum likelihood)")
+        res.titles["psychometric_points"] = (f"Answers counted as yes at each level of "
+                                             f"{adaptive['variable']} played")
+        for _, row in fits.iterrows():
+            res.sentences.append(fit_sentence(row, adaptive["variable"], ps.by))
     if spec.mixed_model is not None and scored:
         from .glmm import MixedModelWarning, mixed_logit
         mf = spec.mixed_model.factors or factors

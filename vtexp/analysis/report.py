@@ -241,6 +241,15 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
                      "participant" + (f", one panel per {fd.trace}" if fd.trace else ""),
                      figures.per_participant_lines(m, fd.dv, fd.x, fd.label, trace=fd.trace,
                                                    scale=fd.scale)))
+    if "psychometric_fit" in T and not T["psychometric_fit"].empty:
+        ps = a.spec.psychometric
+        variable = a.titles.get("psychometric_fit", "").removeprefix(
+            "Psychometric function of ").split(" per participant")[0] or "level"
+        figs.append(("psychometric", f"Psychometric function per participant: proportion of "
+                     f"yes by {variable} played, the maximum-likelihood fit and the threshold "
+                     "with its 95 % bootstrap interval",
+                     figures.psychometric_curves(T["psychometric_fit"], T["psychometric_points"],
+                                                 variable, ps.by if ps else [])))
     if "confusion" in T:
         figs.append(("confusion", "Confusion matrices (rows: shape presented; columns: "
                      "answer; % of the row)",

@@ -130,6 +130,21 @@ class FigureSpec(Model):
                                           "question of several")
 
 
+class PsychometricSpec(Model):
+    """A psychometric function fitted per participant to an adaptive experiment's
+    answers at the levels played (maximum likelihood, parametric-bootstrap interval)."""
+
+    function: Literal["weibull", "logistic", "normal", "gumbel"] | None = Field(
+        None, description="default: the adaptive procedure's")
+    guess: float | None = Field(None, ge=0, lt=1, description="default: the procedure's")
+    lapse: float | Literal["free"] = Field(
+        "free", description="a fixed lapse rate, or 'free' (fitted within [0, max_lapse])")
+    max_lapse: float = Field(0.1, ge=0, lt=0.5)
+    bootstrap: int = Field(200, ge=0, le=10000, description="parametric bootstrap samples")
+    by: list[str] = Field(default_factory=list,
+                          description="factors fitted separately (e.g. the staircase track)")
+
+
 class AnalysisSpec(Model):
     """The analyses of an experiment's report."""
 
@@ -142,6 +157,9 @@ class AnalysisSpec(Model):
     mixed_model: MixedModelSpec | None = None
     figure: FigureSpec | list[FigureSpec] | None = Field(
         None, description="a figure, or a list of them (e.g. one per question)")
+    psychometric: PsychometricSpec | None = Field(
+        None, description="adaptive experiments: the psychometric function per participant "
+                          "(fitted by default when the experiment is adaptive)")
 
     def figures(self) -> list[FigureSpec]:
         """The declared figures as a list (``figure:`` may be one or a list)."""
@@ -187,6 +205,8 @@ class AnalysisSpec(Model):
             refs += [("mixed_model.factors", f) for f in self.mixed_model.factors or []]
             refs += [("mixed_model.items", self.mixed_model.items)] if self.mixed_model.items \
                 else []
+        if self.psychometric:
+            refs += [("psychometric.by", f) for f in self.psychometric.by]
         many = isinstance(self.figure, list)
         for i, f in enumerate(self.figures()):
             at = f"figure[{i}]" if many else "figure"

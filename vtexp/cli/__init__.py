@@ -62,7 +62,8 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except VtexpError as e:
         err(str(e))
-        _after_error(args)
+        if not getattr(e, "final", False):      # e.g. a log that cannot be resumed
+            _after_error(args)
         return e.exit_code
     except KeyboardInterrupt:
         err("interrupted; every actuator was turned off and completed trials are kept")

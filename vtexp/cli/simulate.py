@@ -93,6 +93,11 @@ def cmd_simulate(args) -> int:
     if args.target_power is not None and not 0 < args.target_power < 1:
         raise InputError("the target power must be between 0 and 1", key="--target-power")
     lx, _ = load_and_compile(args.file)        # clear errors before any worker starts
+    if lx.experiment.adaptive is not None:
+        raise InputError("vtexp simulate plays the fixed levels of a design; this experiment "
+                         "chooses its levels adaptively. Run sessions with --responder "
+                         "scripted:psychometric:threshold=T (or see bench/adaptive.py for the "
+                         "procedures' convergence)", path=str(args.file), key="adaptive")
     factors = list(lx.experiment.factors)
     workers = args.workers or os.cpu_count() or 1
     print(f"{lx.experiment.name}: {args.studies} studies of {args.participants} model "

@@ -17,7 +17,7 @@ def make_responder(spec: str, participant: str, session: int, lx=None) -> Respon
     if kind == "model":
         return _make_model(arg, participant, session, lx)
     if kind == "scripted":
-        return make_scripted(arg or "correct", participant, session)
+        return make_scripted(arg or "correct", participant, session, lx)
     if kind == "console":
         from .console import make_console
         return make_console(arg)
@@ -26,6 +26,7 @@ def make_responder(spec: str, participant: str, session: int, lx=None) -> Respon
         return make_window(arg, lx)
     raise InputError(f"unknown responder {spec!r}; available: console, scripted:correct, "
                      "scripted:random, scripted:accuracy=P, scripted:answers=FILE, "
+                     "scripted:psychometric:threshold=T[,slope=S,lapse=L], "
                      "model[:seed=N,typical], "
                      "window[:windowed|fullscreen,screen=N,size=WxH,abort=KEY]",
                      key="--responder")

@@ -6,6 +6,11 @@ Specs on the command line (``--responder``):
 ``scripted:random``             a uniformly random option
 ``scripted:accuracy=P``         correct with probability P, else a random wrong option
 ``scripted:answers=FILE``       one answer per line, in trial order
+``scripted:psychometric:threshold=T[,slope=S,lapse=L,guess=G,function=F]``
+                                a model participant of known threshold for adaptive
+                                procedures: at the level played, a yes (or the correct
+                                option) with probability psi(level) (vtexp.adaptive); the
+                                guess rate and function default to the procedure's
 
 Random choices are deterministic: drawn from a stream seeded by
 (participant, session, trial), so reruns give the same answers.
@@ -65,8 +70,10 @@ def _rng(participant: str, session: int, trial: Trial, salt: str) -> HashRandom:
                                   + trial.number))
 
 
-def make_scripted(spec: str, participant: str, session: int) -> ScriptedResponder:
+def make_scripted(spec: str, participant: str, session: int, lx=None) -> ScriptedResponder:
     """Build a scripted responder from its command-line spec (see module doc)."""
+    if spec.split(":")[0] == "psychometric":
+        return _psychometric(spec.partition(":")[2], participant, session, lx)
     rule, _, arg = spec.partition("=")
     if rule == "correct":
         def pick(q, t):
@@ -105,5 +112,56 @@ def make_scripted(spec: str, participant: str, session: int) -> ScriptedResponde
             raise InputError(f"cannot read the answer file: {e.strerror}", path=str(f)) from None
         return ScriptedResponder(answers=[ln for ln in lines if ln],
                                  description=f"scripted:answers={f}")
-    raise InputError(f"unknown scripted rule {spec!r}; use correct, random, accuracy=P or "
-                     "answers=FILE", key="--responder")
+    raise InputError(f"unknown scripted rule {spec!r}; use correct, random, accuracy=P, "
+                     "answers=FILE or psychometric:threshold=T,...", key="--responder")
+
+
+def _psychometric(arg: str, participant: str, session: int, lx) -> ScriptedResponder:
+    """Answers drawn from a psychometric function of the level the trial played."""
+    from ..adaptive.psychometric import FUNCTIONS, psi
+
+    ada = getattr(getattr(lx, "experiment", None), "adaptive", None)
+    if ada is None:
+        raise InputError("scripted:psychometric answers from the level an adaptive procedure "
+                         "played; this experiment has no 'adaptive:' section", key="--responder")
+    p = ada.procedure
+    opts: dict = {"threshold": None, "slope": 3.0, "lapse": 0.0,
+                  "guess": getattr(p, "guess", 0.0), "function": getattr(p, "function", "weibull")}
+    for part in filter(None, (x.strip() for x in arg.split(","))):
+        key, _, value = part.partition("=")
+        if key not in opts:
+            raise InputError(f"unknown psychometric option {key!r}; use threshold, slope, "
+                             "lapse, guess, function", key="--responder")
+        if key == "function":
+            if value not in FUNCTIONS:
+                raise InputError(f"function must be one of {', '.join(FUNCTIONS)}",
+                                 key="--responder")
+            opts[key] = value
+            continue
+        try:
+            opts[key] = float(value)
+        except ValueError:
+            raise InputError(f"psychometric {key} must be a number (got {value!r})",
+                             key="--responder") from None
+    if opts["threshold"] is None:
+        raise InputError("scripted:psychometric needs threshold=T (in the units of "
+                         f"{ada.variable})", key="--responder")
+    yes = ada.response.yes_answers
+
+    def answer(q, t):
+        if t.presented is None or q.name != (ada.response.question or q.name):
+            return correct_answer(q, t) or q.options[0]
+        rng = _rng(participant, session, t, "psychometric")
+        said_yes = rng.random() < float(psi(t.presented, opts["threshold"], opts["slope"],
+                                            opts["guess"], opts["lapse"], opts["function"]))
+        if yes is not None:
+            pool = [o for o in q.options if (o in yes) == said_yes]
+            return pool[0]
+        c = correct_answer(q, t)
+        if said_yes:
+            return c
+        wrong = [o for o in q.options if o != c]
+        return wrong[rng.below(len(wrong))]
+    desc = ",".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+                    for k, v in opts.items())
+    return ScriptedResponder(answer, description=f"scripted:psychometric:{desc}")
