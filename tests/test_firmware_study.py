@@ -27,6 +27,10 @@ ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "circle_vs_rectangle.yaml"
 SLACK_US = 20           # edges come about 6.3 us after their 100 us tick (interrupt entry)
 MAX_TICK_WAIT_CYCLES = 96   # 6 us: one receive or transmit interrupt, not a 64-bit routine
+# A train's logged onset is its first edge as it happened; its later edges keep the tick
+# grid. A tick that waited for a UART interrupt at the train's start puts the later
+# edges up to that wait before onset + k periods.
+EARLY_US = MAX_TICK_WAIT_CYCLES / 16
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +102,7 @@ def test_every_logged_pulse_is_on_the_pins_and_nothing_else(session):
         want = want[want < t0 + e.duration_ms * 1000]
         for w in want:
             d = rises[pin] - w
-            hit = np.flatnonzero((d >= 0) & (d <= SLACK_US))
+            hit = np.flatnonzero((d >= -EARLY_US) & (d <= SLACK_US))
             explained[pin][hit] = True
             # a rise there, or the pin already high: the pulse of the train it takes over
             # from ran into this instant (the latest started drives the pin)
@@ -118,7 +122,7 @@ def test_every_logged_pulse_is_on_the_pins_and_nothing_else(session):
 def test_no_tick_waited_longer_than_one_short_interrupt(session):
     """A train's first edge is its logged onset and later edges keep the tick grid, so a
     tick held off (interrupts off in the main loop, a long handler) puts one edge off
-    its train. Counted in simulated cycles: the same on a loaded machine."""
+    its train: the wait bounds how far (EARLY_US above). Counted in simulated cycles."""
     _, run, _, trace_path = session
     assert run.returncode == 0, run.stderr
     tr = fwtrace.Trace.load(trace_path)
