@@ -293,14 +293,14 @@ def _where_text(where: dict) -> str:
 def participants_table(sessions: list[SessionData]):
     """The participants table (BIDS ``participants.tsv``) of the sessions' dataset, or None.
 
-    Looked for in each session's dataset root (``<root>/sub-*/ses-*``) and the
-    folders above it. Issue 14 part 1 makes vtexp write it; until then a lab can
-    put one there by hand.
+    The one vtexp writes at the root of the sessions' dataset; for data folders of
+    the layout before BIDS, one a lab put in the folder of the sessions or above it.
     """
     from .participants import read_participants
     seen = set()
     for s in sessions:
-        for folder in list(Path(s.dir).parents)[1:4]:
+        roots = [s.root] if getattr(s, "root", None) is not None else []
+        for folder in roots + list(Path(s.dir).parents)[1:4]:
             f = folder / "participants.tsv"
             if f in seen:
                 continue
