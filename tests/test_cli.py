@@ -69,7 +69,7 @@ def test_demo_runs_the_four_studies_with_model_participants(cli, tmp_path):
     assert r.returncode == 0, r.stderr
     root = tmp_path / "demo"
     for name in ("six_mode_ball", "duration_interval_grid", "whirlpool", "circle_vs_rectangle"):
-        sessions = sorted(root.glob(f"{name}/sub-*/ses-1/session.json"))
+        sessions = sorted(root.glob(f"{name}/sourcedata/vtexp/sub-*/ses-1/*_session.json"))
         assert len(sessions) == 2, name
         meta = [json.loads(s.read_text()) for s in sessions]
         assert all(m["status"] == "completed" for m in meta)
@@ -233,7 +233,7 @@ def test_console_responder_through_standard_input(tmp_path, minimal_yaml):
                         "--responder", "console", "--data", str(tmp_path / "d"), "--quiet"],
                        input="\n1\n", capture_output=True, text=True, env=env, timeout=60)
     assert r.returncode == 130 and "input ended" in r.stderr and "Traceback" not in r.stderr
-    meta = json.loads(next((tmp_path / "d").rglob("sub-02/ses-1/session.json")).read_text())
+    meta = json.loads(next((tmp_path / "d").rglob("sub-02/ses-1/*_session.json")).read_text())
     assert meta["status"] == "aborted" and meta["n_trials_logged"] == 1
 
 
@@ -363,7 +363,7 @@ def test_max_trials_stops_and_the_session_resumes(cli, tmp_path, minimal_yaml):
     assert printed == (f"{sys.executable} -m vtexp run {f} --participant 01 --session 1 "
                        f"--device sim --responder scripted:correct --data {tmp_path / 'd'} "
                        "--resume")
-    meta_path = next((tmp_path / "d").rglob("session.json"))
+    meta_path = next((tmp_path / "d").rglob("*_session.json"))
     meta = json.loads(meta_path.read_text())
     assert meta["status"] == "aborted" and meta["n_trials_logged"] == 3
     assert meta["reason"] == "stopped after 3 trials as asked"
@@ -425,7 +425,7 @@ def test_run_with_a_model_participant(cli, tmp_path):
             "model:seed=4", "--data", str(tmp_path), "--quiet"]
     r = cli(*args)
     assert r.returncode == 0, r.stderr
-    meta = json.loads(next(tmp_path.rglob("session.json")).read_text())
+    meta = json.loads(next(tmp_path.rglob("*_session.json")).read_text())
     assert meta["status"] == "completed" and meta["responder"].startswith("model observer (seed 4")
     bad = cli(*args[:5], "model:seed=x", "--data", str(tmp_path / "b"))
     assert bad.returncode == 2 and "unknown model option" in bad.stderr

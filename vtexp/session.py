@@ -488,8 +488,12 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                                   "start it without --resume)"
                                   if list(rd.parent.glob(f".{rd.name}.staging-*")) else ""))
     # The dataset exists, and the participant has a row, before their folder appears.
-    bids.ensure_dataset(paths.root, exp.name, exp.title, exp.reference)
-    bids.record_participant(paths.root, participant, info_given, fields)
+    try:
+        bids.ensure_dataset(paths.root, exp.name, exp.title, exp.reference)
+        bids.record_participant(paths.root, participant, info_given, fields)
+    except OSError as e:
+        raise SessionError(f"cannot write the dataset {paths.root}: "
+                           f"{e.strerror or e}") from None
     if resume:
         lock = SessionLock.acquire(paths.record_dir, what=who)
         try:

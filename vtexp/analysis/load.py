@@ -126,9 +126,9 @@ def find_sessions(paths: list[Path | str]) -> list[Path]:
                 raise InputError("this is one file of a session; give the session folder "
                                  f"({p.parent}) so that it can be checked against its "
                                  "record", path=str(p))
-            raise InputError("not a vtexp session (expected a folder holding vtexp sessions: "
-                             "a BIDS dataset written by vtexp, or session folders holding "
-                             "session.json)", path=str(p))
+            raise InputError("not a vtexp session folder (expected a BIDS dataset written by "
+                             "vtexp, a folder holding such datasets, or session folders "
+                             "holding session.json)", path=str(p))
         own = _records_in(p)
         if own:
             found.extend(own)

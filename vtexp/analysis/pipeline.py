@@ -325,7 +325,15 @@ def _with_groups(trials: pd.DataFrame, sessions: list[SessionData], names: list[
     if missing:
         raise InputError(f"{path}: no column {', '.join(map(repr, missing))} (its columns: "
                          f"{', '.join(table.columns)})")
-    return join_participants(trials, table[["participant_id", *lacking]], "participant")
+    joined = join_participants(trials, table[["participant_id", *lacking]], "participant")
+    for n in lacking:
+        unknown = sorted(joined.loc[joined[n].isna(), "participant"].astype(str).unique())
+        if unknown:
+            raise InputError(f"{path}: {n} is n/a for participant(s) "
+                             f"{', '.join('sub-' + u for u in unknown[:8])}; the analysis "
+                             f"needs it (give it at the first session: vtexp run "
+                             f"--participant-info {n}=..., or fill it in participants.tsv)")
+    return joined
 
 
 def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experiment: str, *,
