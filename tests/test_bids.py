@@ -125,7 +125,8 @@ def test_participant_fields_in_the_experiment_are_checked(tmp_path):
     f = write_experiment(tmp_path, MINIMAL.replace(
         "device: vest_6x8", "device: vest_6x8\nparticipants:\n  years: {descripton: x}"))
     r = run_cli("validate", str(f))
-    assert r.returncode == 2 and "participants.years" in r.stderr and "descripton" in r.stderr
+    assert r.returncode == 2 and "exp.yaml:5: participants.years" in r.stderr
+    assert "description: required key is missing" in r.stderr
 
 
 def test_an_unreadable_participants_table_is_named(tmp_path):

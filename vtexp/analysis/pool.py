@@ -89,10 +89,11 @@ def load_pooled(patterns: list[str] | str, *, include_practice: bool = False,
         files = [str(beh_path(s)) for s in whole]
         con = duckdb.connect()
         try:
-            rel = con.read_csv(files, delimiter="\t", header=True, all_varchar=True,
-                               null_padding=False, union_by_name=True, filename=True,
-                               nullstr=NA, quotechar="", escapechar="")
-            table = rel.df()
+            # Every value as text (typed afterwards as load_sessions does); n/a missing.
+            table = con.execute(
+                "SELECT * FROM read_csv(?, delim = '\t', header = true, all_varchar = true, "
+                "union_by_name = true, filename = true, nullstr = ?, quote = '', "
+                "escape = '')", [files, NA]).df()
         except duckdb.Error as e:
             raise InputError(f"DuckDB could not read the trial logs: {e}") from None
         finally:
@@ -102,7 +103,8 @@ def load_pooled(patterns: list[str] | str, *, include_practice: bool = False,
             f = beh_path(s)
             header = f.read_text(encoding="utf-8", errors="replace").split("\n", 1)[0]
             rows = table[table["filename"] == str(f)]
-            df = rows[header.split("\t")].reset_index(drop=True)
+            # The text dtype pandas gives read_csv(dtype=str), missing values kept.
+            df = rows[header.split("\t")].reset_index(drop=True).astype(str)
             s.trials = typed_trials(df, s)
     for s in cut:                       # a last row cut off mid-write: read as one session
         again = read_session(s.record)
