@@ -188,7 +188,7 @@ def test_escape_aborts_at_once_and_keeps_the_completed_trials(tmp_path, monkeypa
         run(lx, tmp_path, r)
     d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"
     meta = json.loads(session_record(d).read_text())
-    beh = pd.read_csv(next(d.glob("*_beh.tsv")), sep="\t", dtype=str)
+    beh = pd.read_csv(next(d.glob("beh/*_beh.tsv")), sep="\t", dtype=str)
     assert meta["status"] == "aborted" and "escape" in meta["reason"]
     assert list(beh["answer"]) == ["square"]
     assert r.win is None                     # the window is gone with the session
@@ -225,7 +225,7 @@ def test_escape_pressed_between_two_trials_aborts_at_the_next_screen(tmp_path, m
         run(lx, tmp_path, r)
     d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"
     meta = json.loads(session_record(d).read_text())
-    events = pd.read_csv(next(d.glob("*_events.tsv")), sep="\t", dtype=str)
+    events = pd.read_csv(next(d.glob("beh/*_events.tsv")), sep="\t", dtype=str)
     assert meta["status"] == "aborted" and meta["n_trials_logged"] == 1
     assert set(events["trial"]) == {"1"}         # trial 2's stimulus never played
     assert r.win is None
@@ -365,8 +365,8 @@ def test_escape_during_a_stimulus_stops_it_with_all_off_at_once(tmp_path, xvfb, 
         assert kinds[kinds.index("stopped") + 1] == "all_off" and kinds.count("play") == 1
     d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"
     meta = json.loads(session_record(d).read_text())
-    beh = pd.read_csv(next(d.glob("*_beh.tsv")), sep="\t", dtype=str)
-    events = pd.read_csv(next(d.glob("*_events.tsv")), sep="\t")
+    beh = pd.read_csv(next(d.glob("beh/*_beh.tsv")), sep="\t", dtype=str)
+    events = pd.read_csv(next(d.glob("beh/*_events.tsv")), sep="\t")
     assert meta["status"] == "aborted" and "during the stimulus" in meta["reason"]
     assert list(beh["trial"]) == ["1"] and list(beh["answer"]) == ["square"]
     assert set(events["trial"]) == {1}          # the stopped stimulus left no trace
