@@ -101,3 +101,14 @@ def xvfb():
         os.environ.pop("DISPLAY", None)
     else:
         os.environ["DISPLAY"] = old
+
+
+def session_record(ses: Path) -> Path:
+    """The session record of a BIDS session folder (``.../sub-P/ses-N`` or its ``beh/``):
+    ``sourcedata/vtexp/sub-P/ses-N/*_session.json`` of the same dataset."""
+    ses = Path(ses)
+    ses = ses.parent if ses.name == "beh" else ses
+    folder = ses.parents[1] / "sourcedata" / "vtexp" / ses.parent.name / ses.name
+    found = sorted(folder.glob("*_session.json"))
+    assert len(found) == 1, f"no session record in {folder}"
+    return found[0]

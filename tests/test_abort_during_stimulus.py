@@ -18,7 +18,7 @@ import time
 
 import pandas as pd
 import pytest
-from conftest import MINIMAL, write_experiment
+from conftest import MINIMAL, write_experiment, session_record
 from test_device_contract import VEST, expected, make_backend, vest_schedule
 
 from vtexp.devices import open_device, wire
@@ -169,8 +169,8 @@ def test_a_session_stopped_during_a_stimulus_is_aborted_and_keeps_its_trials(tmp
     assert kinds.count("play") == 1 and kinds[kinds.index("stopped") + 1] == "all_off"
     assert r.stopped == [2]
     d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"
-    meta = json.loads((d / "session.json").read_text())
-    beh = pd.read_csv(next(d.glob("*_beh.tsv")), sep="\t", dtype=str)
-    events = pd.read_csv(next(d.glob("*_events.tsv")), sep="\t")
+    meta = json.loads(session_record(d).read_text())
+    beh = pd.read_csv(next(d.glob("beh/*_beh.tsv")), sep="\t", dtype=str)
+    events = pd.read_csv(next(d.glob("beh/*_events.tsv")), sep="\t")
     assert meta["status"] == "aborted" and meta["reason"] == "the test stopped trial 2"
     assert list(beh["trial"]) == ["1"] and set(events["trial"]) == {1}

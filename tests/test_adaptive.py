@@ -223,7 +223,7 @@ PSY = "scripted:psychometric:threshold=150,slope=3,lapse=0.02"
 
 
 def _beh(data, exp, pid):
-    f = next((data / exp / f"sub-{pid}" / "ses-1").glob("*_beh.tsv"))
+    f = next((data / exp / f"sub-{pid}" / "ses-1" / "beh").glob("*_beh.tsv"))
     return f, pd.read_csv(f, sep="\t", dtype=str)
 
 

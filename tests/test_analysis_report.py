@@ -9,7 +9,7 @@ import shutil
 import pandas as pd
 import pytest
 
-from conftest import GRID, write_experiment
+from conftest import GRID, write_experiment, session_record
 from vtexp.analysis.pipeline import apa_anova, format_p
 
 APA = re.compile(r"F\(\d+(\.\d\d)?, \d+(\.\d\d)?\) = \d+\.\d\d, p (< \.001|= \.\d{3}), η²p = "
@@ -83,7 +83,7 @@ def test_analyze_a_mix_of_folders_writes_a_self_contained_report(cli, data, tmp_
 def test_checksum_mismatch_is_reported_prominently_or_refused(cli, data, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(data, copy)
-    beh = next((copy / "sub-01" / "ses-1").glob("*_beh.tsv"))
+    beh = next((copy / "sub-01" / "ses-1" / "beh").glob("*_beh.tsv"))
     beh.write_text(beh.read_text().replace("\t1\t", "\t0\t", 1))   # someone edited a value
     r = cli("analyze", str(copy), "--out", str(tmp_path / "out"))
     assert r.returncode == 0
@@ -101,10 +101,10 @@ def test_unclosed_session_with_a_cut_row_is_kept_and_reported(cli, data, tmp_pat
     copy = tmp_path / "copy"
     shutil.copytree(data, copy)
     d = copy / "sub-03" / "ses-1"
-    meta = json.loads((d / "session.json").read_text())
+    meta = json.loads(session_record(d).read_text())
     meta.update(status="running", checksums=None)                  # as a killed session
-    (d / "session.json").write_text(json.dumps(meta))
-    beh = next(d.glob("*_beh.tsv"))
+    session_record(d).write_text(json.dumps(meta))
+    beh = next(d.glob("beh/*_beh.tsv"))
     lines = beh.read_text().splitlines(keepends=True)
     beh.write_text("".join(lines[:41]) + lines[41][:9])              # 40 trials + a cut row
     r = cli("analyze", str(copy), "--out", str(tmp_path / "out"))
@@ -128,7 +128,7 @@ def test_files_that_are_not_vtexp_logs_are_refused(cli, tmp_path, make, needle):
 
 
 def test_a_trial_log_given_alone_points_to_its_session_folder(cli, data):
-    beh = next((data / "sub-01" / "ses-1").glob("*_beh.tsv"))
+    beh = next((data / "sub-01" / "ses-1" / "beh").glob("*_beh.tsv"))
     r = cli("analyze", str(beh))
     assert r.returncode == 2 and "give the session folder" in r.stderr
 
@@ -216,7 +216,9 @@ def test_groups_from_the_participants_table_give_a_mixed_anova(cli, data, tmp_pa
                          "between: [group]}\n  posthoc:\n    - {factor: group, between: "
                          "[group], within: [shape], error: pooled}\n", name="grid.yaml")
     r = cli("analyze", str(root), "--experiment", str(f), "--out", str(tmp_path / "out"))
-    assert r.returncode == 2 and "participants.tsv" in r.stderr and "Traceback" not in r.stderr
+    # vtexp wrote participants.tsv at the first sessions, without groups (scripted runs).
+    assert r.returncode == 2 and "participants.tsv: group is n/a for participant(s) sub-01" \
+        in r.stderr and "Traceback" not in r.stderr
     (root / "participants.tsv").write_text("participant_id\tgroup\nsub-01\tblind\n"
                                            "sub-02\tblind\nsub-03\tsighted\n")
     r = cli("analyze", str(root), "--experiment", str(f), "--out", str(tmp_path / "out"))

@@ -90,7 +90,7 @@ def test_a_camera_session_end_to_end_on_the_emulator(tmp_path, clip):
         res = run(lx, tmp_path, dev)
         assert dev.emulator.all_outputs_off()
     assert res.status == "completed"
-    d = res.paths.dir
+    d = res.paths.record_dir               # camera frames are source data
     beh = pd.read_csv(res.paths.beh_tsv, sep="\t", na_values="n/a", keep_default_na=False)
     events = pd.read_csv(res.paths.events_tsv, sep="\t", na_values="n/a")
     assert list(beh.columns).index("stim_file") == list(beh.columns).index("stimulus") + 1
@@ -115,7 +115,7 @@ def test_a_camera_session_end_to_end_on_the_emulator(tmp_path, clip):
             assert any(state for _, state in live.states())
             assert row["stimulus_duration_ms"] >= 500
             assert events[events["trial"] == row["trial"]].empty
-    sidecar = (d / res.paths.beh_json.name).read_text()
+    sidecar = res.paths.beh_json.read_text()
     assert "stim_file" in sidecar
 
 
@@ -143,7 +143,7 @@ def test_a_camera_session_resumes_and_never_overwrites_a_frame(tmp_path, clip):
     with open_device("sim", VEST) as dev:
         first = run(lx, tmp_path, dev, answer_s=0.3, max_trials=2)
     assert first.status == "aborted"
-    d = first.paths.dir
+    d = first.paths.record_dir
     (d / "stim" / "trial-003.png").write_bytes(b"left by a trial cut short")
     with open_device("sim", VEST) as dev:
         again = run(lx, tmp_path, dev, answer_s=0.3, resume=True)

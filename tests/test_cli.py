@@ -69,7 +69,7 @@ def test_demo_runs_the_four_studies_with_model_participants(cli, tmp_path):
     assert r.returncode == 0, r.stderr
     root = tmp_path / "demo"
     for name in ("six_mode_ball", "duration_interval_grid", "whirlpool", "circle_vs_rectangle"):
-        sessions = sorted(root.glob(f"{name}/sub-*/ses-1/session.json"))
+        sessions = sorted(root.glob(f"{name}/sourcedata/vtexp/sub-*/ses-1/*_session.json"))
         assert len(sessions) == 2, name
         meta = [json.loads(s.read_text()) for s in sessions]
         assert all(m["status"] == "completed" for m in meta)
@@ -77,16 +77,16 @@ def test_demo_runs_the_four_studies_with_model_participants(cli, tmp_path):
         # the short version that was run is the file the sessions record
         assert all(Path(m["experiment_file"]["path"]) == root / "experiments" / f"{name}.yaml"
                    for m in meta)
-        html = root / "report" / name / "report.html"
+        html = root / name / "derivatives" / "vtexp" / name / "report.html"
         assert str(html) in r.stdout
         if name != "whirlpool":                        # it declares no figure
             assert "data:image/png;base64," in html.read_text()   # figures embedded
         assert "<table" in html.read_text() and name in r.stdout
-    assert (root / "report" / "report.md").is_file()
+        assert (root / name / "derivatives" / "vtexp" / "report.md").is_file()
     assert "effect of display: F(" in r.stdout and "effect of shape: F(" in r.stdout
     assert "vtexp simulate" in r.stdout
     # The same seed gives the same answers: a second demo replaces the first, identically.
-    first = (next(root.glob("whirlpool/sub-sim01/ses-1/*_beh.tsv"))).read_text()
+    first = (next(root.glob("whirlpool/sub-sim01/ses-1/beh/*_beh.tsv"))).read_text()
     # The study's reanalysis script reproduces the paper's Table 1 layout from the data.
     import subprocess
     import sys
@@ -100,7 +100,7 @@ def test_demo_runs_the_four_studies_with_model_participants(cli, tmp_path):
     assert len(table) == 8 and table.to_numpy().min() >= 0 and table.to_numpy().max() <= 1
     assert cli("demo", "--data", str(root), "--participants", "2",
                timeout=300).returncode == 0
-    again = (next(root.glob("whirlpool/sub-sim01/ses-1/*_beh.tsv"))).read_text()
+    again = (next(root.glob("whirlpool/sub-sim01/ses-1/beh/*_beh.tsv"))).read_text()
     drop_time = [ln.rsplit("\t", 1)[0] for ln in first.splitlines()]
     assert drop_time == [ln.rsplit("\t", 1)[0] for ln in again.splitlines()]
     other = tmp_path / "precious"
@@ -233,7 +233,7 @@ def test_console_responder_through_standard_input(tmp_path, minimal_yaml):
                         "--responder", "console", "--data", str(tmp_path / "d"), "--quiet"],
                        input="\n1\n", capture_output=True, text=True, env=env, timeout=60)
     assert r.returncode == 130 and "input ended" in r.stderr and "Traceback" not in r.stderr
-    meta = json.loads(next((tmp_path / "d").rglob("sub-02/ses-1/session.json")).read_text())
+    meta = json.loads(next((tmp_path / "d").rglob("sub-02/ses-1/*_session.json")).read_text())
     assert meta["status"] == "aborted" and meta["n_trials_logged"] == 1
 
 
@@ -279,8 +279,14 @@ def test_run_asks_the_experimenter_at_a_terminal(tmp_path, minimal_yaml):
     run = ["run", str(f), "--responder", "scripted:correct", "--data", str(tmp_path / "d"),
            "--quiet"]
     # A bad id is refused with the reason and asked again; the session defaults to 1.
-    r = _at_a_terminal(run + ["--max-trials", "1"], "a/b\n07\n\n")
+    # A new participant: what participants.tsv records is asked (a wrong value again).
+    r = _at_a_terminal(run + ["--max-trials", "1"], "a/b\n07\n\nblind\nold\n34\nr\n\n")
     assert r.returncode == 0, r.stderr
+    assert "Participant 07 is new to" in r.stdout and "  group (one word): " in r.stdout
+    assert "age is a number in years, got 'old'" in r.stdout
+    assert "  vision (sighted, low-vision, blind): " in r.stdout
+    table = (tmp_path / "d" / "mini" / "participants.tsv").read_text()
+    assert table.splitlines()[1] == "sub-07\tblind\t34\tright\tn/a"
     assert "Participant id: " in r.stdout and "'a/b' is not a plain token" in r.stdout
     assert "Participant 07 has no sessions yet" in r.stdout and "New session [1]: " in r.stdout
     assert "session aborted: 1 trials logged" in r.stdout
@@ -363,7 +369,7 @@ def test_max_trials_stops_and_the_session_resumes(cli, tmp_path, minimal_yaml):
     assert printed == (f"{sys.executable} -m vtexp run {f} --participant 01 --session 1 "
                        f"--device sim --responder scripted:correct --data {tmp_path / 'd'} "
                        "--resume")
-    meta_path = next((tmp_path / "d").rglob("session.json"))
+    meta_path = next((tmp_path / "d").rglob("*_session.json"))
     meta = json.loads(meta_path.read_text())
     assert meta["status"] == "aborted" and meta["n_trials_logged"] == 3
     assert meta["reason"] == "stopped after 3 trials as asked"
@@ -391,7 +397,8 @@ def test_test_pulse_plays_only_when_the_experimenter_says_yes(tmp_path, minimal_
     with PtyEmulator.for_profile(DeviceProfile.load("vest_6x8")) as emu:
         run = ["run", str(f), "--device", f"serial:{emu.port}", "--responder",
                "scripted:correct", "--data", str(tmp_path / "d"), "--quiet", "--test-pulse",
-               "--max-trials", "1"]
+               "--max-trials", "1", "--participant-info",
+               "group=a,age=30,handedness=right,vision=sighted"]
         r = _at_a_terminal(run + ["-p", "01"], "\n")           # the default is no
         assert r.returncode == 0, r.stderr
         assert ("Play a test pulse on actuator (row 0, col 0), level 1 for 300 ms? [y/N] "
@@ -425,7 +432,7 @@ def test_run_with_a_model_participant(cli, tmp_path):
             "model:seed=4", "--data", str(tmp_path), "--quiet"]
     r = cli(*args)
     assert r.returncode == 0, r.stderr
-    meta = json.loads(next(tmp_path.rglob("session.json")).read_text())
+    meta = json.loads(next(tmp_path.rglob("*_session.json")).read_text())
     assert meta["status"] == "completed" and meta["responder"].startswith("model observer (seed 4")
     bad = cli(*args[:5], "model:seed=x", "--data", str(tmp_path / "b"))
     assert bad.returncode == 2 and "unknown model option" in bad.stderr

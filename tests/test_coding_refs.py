@@ -160,7 +160,7 @@ def test_session_json_records_the_coding_file_and_its_hash(tmp_path, minimal_yam
     responder = make_responder("scripted:correct", "01", 1)
     with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
         res = run_session(lx, "01", 1, dev, responder, tmp_path / "data")
-    meta = json.loads((res.paths.dir / "session.json").read_text())
+    meta = json.loads(res.paths.session_json.read_text())
     coding = meta["experiment_loaded"]["coding"]
     file = ROOT / "protocols" / "codings" / "seed001_table1_best_trace.yaml"
     assert coding["protocol"] == "sequential-trace" and coding["params"]["duration_ms"] == 300

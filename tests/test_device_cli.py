@@ -149,7 +149,7 @@ def test_run_a_session_on_the_emulator_backend(cli, tmp_path, minimal_yaml):
             "scripted:correct", "--data", str(tmp_path / "data"), "-q")
     assert r.returncode == 0, r.stderr
     assert "session completed: 4 trials logged" in r.stdout
-    meta = json.loads(next((tmp_path / "data").rglob("session.json")).read_text())
+    meta = json.loads(next((tmp_path / "data").rglob("*_session.json")).read_text())
     assert meta["device"]["backend"] == "emulator"
     assert meta["device"]["protocol"] == "vtexp-wire/1"
     events = next((tmp_path / "data").rglob("*_events.tsv")).read_text().splitlines()
@@ -174,7 +174,7 @@ def test_cable_pulled_during_a_session_ends_it_with_a_message_not_a_traceback(
     assert p.returncode == 3, err
     assert err.startswith(f"vtexp: error: lost contact with the tactile device on {emu.port}")
     assert "Traceback" not in err
-    meta = json.loads(next((tmp_path / "data").rglob("session.json")).read_text())
+    meta = json.loads(next((tmp_path / "data").rglob("*_session.json")).read_text())
     assert meta["status"] == "failed" and "lost contact" in meta["reason"]
     time.sleep(0.3)
     assert emu.all_outputs_off()

@@ -23,6 +23,8 @@ import pytest
 
 from vtexp.devices import fwtrace
 
+from conftest import session_record
+
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "circle_vs_rectangle.yaml"
 SLACK_US = 20           # edges come about 6.3 us after their 100 us tick (interrupt entry)
@@ -67,8 +69,8 @@ def test_the_study_runs_to_its_end_on_the_chip(session):
     assert "Traceback" not in run.stderr
     assert "device check passed; no actuator is on" in run.stdout
     assert "session completed: 20 trials logged" in run.stdout
-    meta = json.loads((tmp / "data" / "circle_vs_rectangle" / "sub-01" / "ses-1" /
-                       "session.json").read_text())
+    meta = json.loads(session_record(tmp / "data" / "circle_vs_rectangle" / "sub-01" /
+                                     "ses-1").read_text())
     assert meta["status"] == "completed"
     assert meta["device"]["firmware"].startswith("vtexp-fw ") and "avr sma_5x5" in \
         meta["device"]["firmware"]
@@ -79,8 +81,8 @@ def test_every_logged_pulse_is_on_the_pins_and_nothing_else(session):
     tmp, run, _, trace_path = session
     assert run.returncode == 0, run.stderr
     ses = tmp / "data" / "circle_vs_rectangle" / "sub-01" / "ses-1"
-    meta = json.loads((ses / "session.json").read_text())
-    events = pd.read_csv(ses / meta["files"]["events"], sep="\t")
+    meta = json.loads(session_record(ses).read_text())
+    events = pd.read_csv(ses.parents[1] / meta["files"]["events"], sep="\t")
     tr = fwtrace.Trace.load(trace_path)
     edges = fwtrace.gate_edges(tr)
     rises = {i: np.array([tr.device_us(c) for c, s in e if s]) for i, e in edges.items()}

@@ -57,7 +57,7 @@ def test_a_second_run_of_a_running_session_is_refused_naming_the_process(tmp_pat
                               "--data", str(data)], env=ENV, stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True)
     try:
-        lock = paths_of(data).dir / "session.lock"
+        lock = paths_of(data).record_dir / "session.lock"
         deadline = time.monotonic() + 60
         while not lock.exists() and time.monotonic() < deadline:
             time.sleep(0.05)
@@ -92,16 +92,17 @@ def test_a_stale_lock_of_a_killed_run_is_recognised_and_the_session_marked(tmp_p
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.communicate(timeout=30)
-    d = paths_of(data).dir
+    d = paths_of(data).record_dir
+    rec = paths_of(data).session_json
     assert (d / "session.lock").exists()            # left behind, held by no one
-    assert json.loads((d / "session.json").read_text())["status"] == "running"
+    assert json.loads(rec.read_text())["status"] == "running"
     # The next run of the experiment (here for another participant) finds it dead.
     r = vtexp("run", f, "-p", "02", "--responder", "scripted:correct", "--data", data,
               "--quiet", "--max-trials", "1")
     assert r.returncode == 0, r.stderr
     assert "Session 1 of participant 01 did not close" in r.stdout
     assert f"pid {proc.pid} on" in r.stdout and "marked interrupted" in r.stdout
-    meta = json.loads((d / "session.json").read_text())
+    meta = json.loads(rec.read_text())
     assert meta["status"] == "interrupted" and f"pid {proc.pid}" in meta["reason"]
     # The printed command continues it, from another folder, on the device it ran on.
     cmd = printed_command(r.stdout)
@@ -109,7 +110,7 @@ def test_a_stale_lock_of_a_killed_run_is_recognised_and_the_session_marked(tmp_p
     r = subprocess.run(cmd + ["--quiet"], cwd=tmp_path, env=ENV, capture_output=True,
                        text=True, timeout=180)
     assert r.returncode == 0, r.stderr
-    meta = json.loads((d / "session.json").read_text())
+    meta = json.loads(rec.read_text())
     assert meta["status"] == "completed" and meta["n_trials_logged"] == 8
     assert meta["resumes"][0]["previous_status"] == "interrupted"
     trials = pd.read_csv(paths_of(data).beh_tsv, sep="\t")["trial"]
@@ -184,7 +185,7 @@ def _run_killed_at(lx, data, k: int) -> int:
 
 def _finish(lx, data) -> str:
     """What the experimenter does next: resume the session if it exists, else start it."""
-    d = paths_of(data).dir
+    d = paths_of(data).record_dir
     resume = d.exists()
     if resume:
         # The next run first marks a dead session (and clears a dead staging folder).
@@ -204,7 +205,7 @@ def _logged(data):
     # The device clock restarts with each run: onsets are compared within a trial only.
     beh = pd.read_csv(p.beh_tsv, sep="\t", dtype=str).drop(columns=["started_at",
                                                                    "stimulus_onset_ms"])
-    ev = pd.read_csv(p.events_tsv, sep="\t", dtype=str).drop(columns=["onset_ms"])
+    ev = pd.read_csv(p.events_tsv, sep="\t", dtype=str).drop(columns=["onset_ms", "onset"])
     return beh, ev
 
 
@@ -227,8 +228,8 @@ def test_a_session_killed_at_every_step_of_its_start_can_be_resumed(tmp_path):
         pd.testing.assert_frame_equal(ev, ref_ev)
         meta = json.loads(paths_of(data).session_json.read_text())
         assert meta["status"] == "completed"
-        assert not (paths_of(data).dir / "session.lock").exists()
-        assert not list(paths_of(data).dir.parent.glob(".ses-*"))
+        assert not (paths_of(data).record_dir / "session.lock").exists()
+        assert not list(paths_of(data).record_dir.parent.glob(".ses-*"))
     # Kills before the session was renamed into place left no session; after, one to resume.
     assert {"started", "resumed"} == set(outcomes.values())
     print(f"\n{len(outcomes)} kills: {sum(v == 'started' for v in outcomes.values())} "
@@ -237,18 +238,21 @@ def test_a_session_killed_at_every_step_of_its_start_can_be_resumed(tmp_path):
 
 
 def test_what_an_older_run_killed_at_start_left_is_rebuilt(tmp_path):
-    """Sessions left by vtexp before staging: a folder alone, session.json alone, or the
-    trial log without the events log; each resumes."""
+    """What a kill after the record folder was renamed into place can leave: the folder
+    alone (its record lost), the record alone, or the trial log without the events log;
+    each resumes."""
     lx = load_experiment(write_experiment(tmp_path, MINIMAL))
     ref = tmp_path / "ref"
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
         run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1), ref)
     ref_beh, ref_ev = _logged(ref)
     p = paths_of(ref)
-    for case in ("folder only", "session.json only", "no events log", "empty trial log"):
+    for case in ("folder only", "record only", "no events log", "empty trial log"):
         data = tmp_path / case.replace(" ", "_")
         q = paths_of(data)
-        q.dir.mkdir(parents=True)
+        q.record_dir.mkdir(parents=True)
+        if case in ("no events log", "empty trial log"):
+            q.dir.mkdir(parents=True)
         if case != "folder only":
             meta = json.loads(p.session_json.read_text())
             meta.update(status="running", n_trials_logged=0, checksums=None, resumes=[])
@@ -267,7 +271,7 @@ def test_what_an_older_run_killed_at_start_left_is_rebuilt(tmp_path):
         rebuilt = json.loads(q.session_json.read_text())["resumes"][0]["rebuilt"]
         assert rebuilt, case
         if case == "folder only":
-            assert rebuilt[0].startswith("session.json")
+            assert rebuilt[0].startswith(q.session_json.name)
 
 
 # ------------------------------------------------------------ the device it resumes on
@@ -292,8 +296,8 @@ def test_a_serial_session_resumes_on_the_serial_device_and_not_on_sim(tmp_path):
         # Resumed with nothing but --resume: the serial device and responder recorded.
         r = vtexp("run", f, "-p", "01", "--data", data, "--resume", "--quiet")
         assert r.returncode == 0, r.stderr
-        assert f"device as recorded in session.json: serial:{emu.port}" in r.stdout
-        assert "responder as recorded in session.json: scripted:correct" in r.stdout
+        assert f"device as recorded in the session record: serial:{emu.port}" in r.stdout
+        assert "responder as recorded in the session record: scripted:correct" in r.stdout
         plays_after = [a for a in emu.actuations() if a.cause == "play"]
         assert len(plays_after) > len(plays_before)     # trials 3 and 4 played on it
     finally:

@@ -14,7 +14,7 @@ import time
 import pandas as pd
 import pytest
 
-from conftest import GRID, ROOT, write_experiment
+from conftest import GRID, ROOT, write_experiment, session_record
 from vtexp.analysis import read_session
 from vtexp.devices import open_device
 from vtexp.errors import InputError, SessionError
@@ -38,11 +38,16 @@ def grid_lx():
 
 def test_session_writes_bids_files_and_a_complete_record(tmp_path, grid_lx):
     res, dev = run(grid_lx, tmp_path)
-    d = tmp_path / "duration_interval_grid" / "sub-01" / "ses-1"
+    root = tmp_path / "duration_interval_grid"
+    d = root / "sub-01" / "ses-1" / "beh"
     assert res.paths.dir == d and res.status == "completed"
     prefix = "sub-01_ses-1_task-durationIntervalGrid"
     assert sorted(p.name for p in d.iterdir()) == sorted(
-        ["session.json", f"{prefix}_beh.tsv", f"{prefix}_beh.json", f"{prefix}_events.tsv"])
+        [f"{prefix}_beh.tsv", f"{prefix}_beh.json", f"{prefix}_events.tsv",
+         f"{prefix}_events.json"])
+    assert sorted(p.name for p in res.paths.record_dir.iterdir()) == [f"{prefix}_session.json"]
+    assert {"dataset_description.json", "README.md", "participants.tsv",
+            "participants.json"} <= {p.name for p in root.iterdir()}
 
     beh = pd.read_csv(d / f"{prefix}_beh.tsv", sep="\t", dtype=str, keep_default_na=False)
     assert len(beh) == 96 and list(beh["trial"]) == [str(i) for i in range(1, 97)]
@@ -52,25 +57,33 @@ def test_session_writes_bids_files_and_a_complete_record(tmp_path, grid_lx):
     assert (beh["rt_s"] == "n/a").all()        # scripted answers have no reaction time
 
     side = json.loads((d / f"{prefix}_beh.json").read_text())
-    assert side["TaskName"] == grid_lx.experiment.title and "Instructions" in side
+    assert side["TaskName"] == "durationIntervalGrid" and "Instructions" in side
+    assert side["TaskFullName"] == grid_lx.experiment.title
     assert set(beh.columns) <= set(side) | {"experiment"}
     assert side["rt_s"]["Units"] == "s"
 
-    meta = json.loads((d / "session.json").read_text())
+    meta = json.loads(session_record(d).read_text())
     assert meta["status"] == "completed" and meta["n_trials_logged"] == 96
     assert meta["seed"] == res.seed and meta["experiment_file"]["sha256"] == grid_lx.sha256
     assert meta["experiment_loaded"]["name"] == "duration_interval_grid"
     assert meta["device"]["backend"] == "sim" and meta["device_profile"]["name"] == "vest_6x8"
     assert meta["environment"]["packages"]["numpy"]
     assert meta["started_at"] <= meta["ended_at"]
+    assert len(meta["checksums"]) == 4
     for name, digest in meta["checksums"].items():
-        assert sha256_file(d / name) == digest
+        assert sha256_file(root / name) == digest
 
     # The events log holds every pulse the device played, with device onsets.
     ev = pd.read_csv(d / f"{prefix}_events.tsv", sep="\t")
     assert len(ev) == sum(len(p.pulses) for p in dev.plays) == beh["n_pulses"].astype(int).sum()
     first = ev[ev["trial"] == 1]
     assert (first["onset_ms"] - first["scheduled_onset_ms"]).abs().max() == 0
+    # BIDS: onset and duration in seconds first, from the session's first stimulus, sorted.
+    assert list(ev.columns[:2]) == ["onset", "duration"] and ev["onset"].iloc[0] == 0
+    assert ev["onset"].is_monotonic_increasing
+    assert (ev["duration"] * 1000 - ev["duration_ms"]).abs().max() < 1e-6
+    events_side = json.loads((d / f"{prefix}_events.json").read_text())
+    assert set(ev.columns) <= set(events_side) and events_side["onset"]["Units"] == "s"
 
 
 def test_trial_order_in_the_log_is_the_planned_order(tmp_path, grid_lx):
@@ -119,7 +132,7 @@ def test_failure_mid_session_keeps_completed_trials_and_says_why(tmp_path, minim
     with pytest.raises(RuntimeError):
         run(lx, tmp_path / "d", responder=ScriptedResponder(flaky))
     d = tmp_path / "d" / "mini" / "sub-01" / "ses-1"
-    meta = json.loads((d / "session.json").read_text())
+    meta = json.loads(session_record(d).read_text())
     assert meta["status"] == "failed" and "response box unplugged" in meta["reason"]
     assert meta["n_trials_logged"] == 2
     assert len(read_session(d).trials) == 2
@@ -133,7 +146,8 @@ def test_unwritable_data_folder_is_a_clear_error(tmp_path, grid_lx):
     else:
         data = tmp_path / "ro"
         data.mkdir(mode=0o500)
-    with pytest.raises(SessionError, match="cannot create the session folder"):
+    with pytest.raises(SessionError, match="cannot (create the session folder|write the "
+                                           "dataset)"):
         run(grid_lx, data)
 
 
@@ -279,7 +293,7 @@ def test_a_device_fault_pauses_the_session_for_the_experimenter(tmp_path, minima
     assert asked == [(2, "lost contact with the tactile device (test)")]
     d = tmp_path / "d" / "mini" / "sub-01" / "ses-1"
     rows = read_session(d).trials
-    meta = json.loads((d / "session.json").read_text())
+    meta = json.loads(session_record(d).read_text())
     if choice == "retry":
         assert list(rows["status"]) == ["ok"] * 4 and flaky.reopened >= 1
         assert rows["correct"].sum() == 4
@@ -318,7 +332,7 @@ def test_screen_hooks_and_abort_from_the_responder(tmp_path, minimal_yaml):
     with pytest.raises(SessionAborted):
         run(lx, tmp_path / "b", responder=ScriptedResponder(escape))
     d = tmp_path / "b" / "mini" / "sub-01" / "ses-1"
-    meta = json.loads((d / "session.json").read_text())
+    meta = json.loads(session_record(d).read_text())
     assert meta["status"] == "aborted" and "Escape" in meta["reason"]
     assert len(read_session(d).trials) == 2
 
@@ -327,8 +341,9 @@ def _comparable(paths):
     """The session's data without what differs between runs (wall clock, device clock)."""
     beh = pd.read_csv(paths.beh_tsv, sep="\t", dtype=str, keep_default_na=False)
     ev = pd.read_csv(paths.events_tsv, sep="\t", dtype=str, keep_default_na=False)
+    # A resumed run's onsets are placed at its wall-clock start: onset differs too.
     return (beh.drop(columns=["started_at", "stimulus_onset_ms"]),
-            ev.drop(columns=["onset_ms"]))
+            ev.drop(columns=["onset_ms", "onset"]))
 
 
 def test_killed_at_random_moments_and_resumed_equals_an_uninterrupted_run(tmp_path):
@@ -411,8 +426,10 @@ def test_disk_full_stops_before_the_next_trial_with_the_reason(tmp_path, minimal
     state = {"beh_rows": 0}
 
     def write(fd, data):
-        # The third trial's row finds the disk full after writing half of it.
-        if data.startswith(b"3\t"):
+        # The third trial's device events find the disk full after writing half of them
+        # (an events row: onset in seconds, duration, trial).
+        cells = data.split(b"\t", 3)
+        if len(cells) > 3 and b"." in cells[0] and cells[2] == b"3":
             real_write(fd, data[: len(data) // 2])
             raise OSError(errno.ENOSPC, "No space left on device")
         if data[:1].isdigit():
@@ -423,11 +440,11 @@ def test_disk_full_stops_before_the_next_trial_with_the_reason(tmp_path, minimal
                                            "is intact"):
         run(lx, tmp_path / "d", responder=make_responder("scripted:correct", "01", 1))
     monkeypatch.setattr(vlog.os, "write", real_write)
-    d = tmp_path / "d" / "mini" / "sub-01" / "ses-1"
+    d = tmp_path / "d" / "mini" / "sub-01" / "ses-1" / "beh"
     data = read_session(d)
     assert list(data.trials["trial"]) == [1, 2]                   # nothing corrupted
     assert not paths_events_complete(d)                            # trial 3's event row cut
-    meta = json.loads((d / "session.json").read_text())
+    meta = json.loads(session_record(d).read_text())
     assert meta["status"] == "failed" and "No space left" in meta["reason"]
     # With space again, the session resumes at trial 3.
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:

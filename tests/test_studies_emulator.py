@@ -19,6 +19,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from conftest import session_record
+
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = ROOT / "experiments"
 N_TRIALS = 2
@@ -69,15 +71,17 @@ def test_study_runs_on_the_emulator(runs, study):
     assert f"stopped after {N_TRIALS} trials as asked (--max-trials {N_TRIALS})" in r.stdout
 
     ses = data / study / "sub-01" / "ses-1"
-    meta = json.loads((ses / "session.json").read_text())
+    meta = json.loads(session_record(ses).read_text())
     assert meta["status"] == "aborted" and meta["reason"] == \
         f"stopped after {N_TRIALS} trials as asked"
     assert meta["n_trials_logged"] == N_TRIALS
     assert meta["device"]["backend"] == "emulator"
     assert meta["device"]["firmware"].startswith("vtexp-emulator")
-    assert set(meta["checksums"]) == {p.name for p in ses.glob("sub-01_ses-1_*")}
+    root = data / study
+    assert set(meta["checksums"]) == {p.relative_to(root).as_posix()
+                                      for p in ses.glob("beh/sub-01_ses-1_*")}
 
-    beh = pd.read_csv(ses / meta["files"]["beh"], sep="\t", keep_default_na=False)
+    beh = pd.read_csv(root / meta["files"]["beh"], sep="\t", keep_default_na=False)
     assert len(beh) == N_TRIALS * QUESTIONS.get(study, 1)
     assert list(beh["trial"].unique()) == list(range(1, N_TRIALS + 1))
     assert (beh["status"] == "ok").all()
@@ -85,7 +89,7 @@ def test_study_runs_on_the_emulator(runs, study):
         assert (beh["correct"] == 1).all()
 
     # Every pulse the emulated firmware reported playing, at its own clock's onset.
-    events = pd.read_csv(ses / meta["files"]["events"], sep="\t")
+    events = pd.read_csv(root / meta["files"]["events"], sep="\t")
     per_trial = beh.drop_duplicates("trial").set_index("trial")
     assert events.groupby("trial").size().to_dict() == per_trial["n_pulses"].to_dict()
     assert (events["play"] == 0).all()               # scripted answers ask no replay

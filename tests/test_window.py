@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import MINIMAL, ROOT, write_experiment
+from conftest import MINIMAL, ROOT, write_experiment, session_record
 
 if importlib.util.find_spec("psychopy") is None:
     pytest.skip("PsychoPy is not installed (the 'gui' extra: pip install -e '.[gui]'; "
@@ -135,7 +135,7 @@ def run(lx, tmp_path, resp):
 def logged(res):
     beh = next(res.paths.dir.glob("*_beh.tsv"))
     return (pd.read_csv(beh, sep="\t", dtype=str, keep_default_na=False),
-            json.loads((res.paths.dir / "session.json").read_text()))
+            json.loads(res.paths.session_json.read_text()))
 
 
 def test_a_session_answered_with_keys_and_clicks_is_logged(tmp_path, monkeypatch):
@@ -187,8 +187,8 @@ def test_escape_aborts_at_once_and_keeps_the_completed_trials(tmp_path, monkeypa
     with pytest.raises(SessionAborted, match="escape"):
         run(lx, tmp_path, r)
     d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"
-    meta = json.loads((d / "session.json").read_text())
-    beh = pd.read_csv(next(d.glob("*_beh.tsv")), sep="\t", dtype=str)
+    meta = json.loads(session_record(d).read_text())
+    beh = pd.read_csv(next(d.glob("beh/*_beh.tsv")), sep="\t", dtype=str)
     assert meta["status"] == "aborted" and "escape" in meta["reason"]
     assert list(beh["answer"]) == ["square"]
     assert r.win is None                     # the window is gone with the session
@@ -224,8 +224,8 @@ def test_escape_pressed_between_two_trials_aborts_at_the_next_screen(tmp_path, m
     with pytest.raises(SessionAborted, match="escape"):
         run(lx, tmp_path, r)
     d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"
-    meta = json.loads((d / "session.json").read_text())
-    events = pd.read_csv(next(d.glob("*_events.tsv")), sep="\t", dtype=str)
+    meta = json.loads(session_record(d).read_text())
+    events = pd.read_csv(next(d.glob("beh/*_events.tsv")), sep="\t", dtype=str)
     assert meta["status"] == "aborted" and meta["n_trials_logged"] == 1
     assert set(events["trial"]) == {"1"}         # trial 2's stimulus never played
     assert r.win is None
@@ -364,9 +364,9 @@ def test_escape_during_a_stimulus_stops_it_with_all_off_at_once(tmp_path, xvfb, 
         kinds = [e.kind for e in dev.history]
         assert kinds[kinds.index("stopped") + 1] == "all_off" and kinds.count("play") == 1
     d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"
-    meta = json.loads((d / "session.json").read_text())
-    beh = pd.read_csv(next(d.glob("*_beh.tsv")), sep="\t", dtype=str)
-    events = pd.read_csv(next(d.glob("*_events.tsv")), sep="\t")
+    meta = json.loads(session_record(d).read_text())
+    beh = pd.read_csv(next(d.glob("beh/*_beh.tsv")), sep="\t", dtype=str)
+    events = pd.read_csv(next(d.glob("beh/*_events.tsv")), sep="\t")
     assert meta["status"] == "aborted" and "during the stimulus" in meta["reason"]
     assert list(beh["trial"]) == ["1"] and list(beh["answer"]) == ["square"]
     assert set(events["trial"]) == {1}          # the stopped stimulus left no trace

@@ -436,6 +436,37 @@ class PresentationSpec(Model):
                                           "language vtexp has no phrase book for")
 
 
+class ParticipantField(Model):
+    """A property of each participant (a column of the dataset's ``participants.tsv``),
+    asked of the experimenter at the participant's first session and kept."""
+
+    description: str = Field(description="what the value means, for participants.json")
+    levels: list[Annotated[str, Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")]] | None = Field(
+        None, description="the values allowed (e.g. [blind, sighted]); any single word if "
+                          "not given")
+    type: Literal["text", "number"] = Field("text", description="text or number")
+    units: str | None = Field(None, description="units of a number, e.g. years")
+    minimum: float | None = Field(None, description="smallest number allowed")
+    maximum: float | None = Field(None, description="largest number allowed")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Self:
+        if self.type == "number" and self.levels:
+            raise ValueError("a number field has no 'levels' (give minimum/maximum)")
+        if self.type == "text" and (self.units or self.minimum is not None
+                                    or self.maximum is not None):
+            raise ValueError("'units', 'minimum' and 'maximum' are for type: number")
+        return self
+
+
+def _participant_fields(value: dict) -> dict:
+    for name in value:
+        if name in ("participant_id", "participant", "experiment", "session", "dataset"):
+            raise ValueError(f"{name!r} is not a participant field vtexp can ask (it names "
+                             "the participant or the data); choose another name")
+    return value
+
+
 QUESTION_KINDS = ("choice", "rating", "number")
 
 
@@ -479,6 +510,12 @@ class Experiment(Model):
     adaptive: AdaptiveSpec | None = Field(
         None, description="a coding parameter chosen trial by trial from the answers so far: "
                           "staircase, QUEST or QUEST+ (vtexp/adaptive/spec.py)")
+    participants: Annotated[dict[Annotated[str, Field(pattern=NAME)], ParticipantField],
+                            AfterValidator(_participant_fields)] = Field(
+        default_factory=dict,
+        description="properties of each participant asked at their first session and kept in "
+                    "the dataset's participants.tsv, besides group, age, handedness and vision "
+                    "(which a field of the same name redefines, e.g. group with its levels)")
 
     @model_validator(mode="after")
     def _one_question_key(self) -> Self:

@@ -139,9 +139,14 @@ class TsvLog:
         self.close()
 
 
+def tmp_name(path: Path) -> Path:
+    """Where :func:`write_json_atomic` stages ``path``: a hidden name, which BIDS ignores."""
+    return path.with_name(f".{path.name}.tmp")
+
+
 def write_json_atomic(path: Path, data: Any) -> None:
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = tmp_name(path)
     text = json.dumps(data, indent=2, ensure_ascii=False, default=str) + "\n"
     try:
         with open(tmp, "w", encoding="utf-8") as f:

@@ -1,27 +1,45 @@
 """The session engine: plays the trial list, asks, and logs every trial.
 
-One folder per session, following the BIDS behavioural convention::
+Every data folder is a BIDS dataset (:mod:`vtexp.bids`), one per experiment; a
+session writes its BIDS files in ``sub-<P>/ses-<N>/beh/`` and vtexp's own record
+in ``sourcedata/vtexp/sub-<P>/ses-<N>/``, where BIDS leaves room for it::
 
-    DATA/<experiment>/sub-<P>/ses-<N>/
-        sub-<P>_ses-<N>_task-<T>_beh.tsv     one row per trial and question (append + fsync)
-        sub-<P>_ses-<N>_task-<T>_beh.json    column descriptions, TaskName, Instructions
-        sub-<P>_ses-<N>_task-<T>_events.tsv  every pulse the device reported playing
-        session.json                         what produced the session, and how it ended
+    DATA/<experiment>/
+        dataset_description.json  README.md  participants.tsv  participants.json
+        sub-<P>/ses-<N>/beh/
+            sub-<P>_ses-<N>_task-<T>_beh.tsv      one row per trial and question (append + fsync)
+            sub-<P>_ses-<N>_task-<T>_beh.json     every column described, TaskName, Instructions
+            sub-<P>_ses-<N>_task-<T>_events.tsv   every pulse the device reported playing
+                                                  (onset, duration in seconds first)
+            sub-<P>_ses-<N>_task-<T>_events.json  every column described
+        sourcedata/vtexp/sub-<P>/ses-<N>/
+            sub-<P>_ses-<N>_task-<T>_session.json what produced the session, how it ended
+            session.lock                          held while the session runs
+            stim/                                 camera frames (camera stimuli)
 
-``session.json`` is written with status ``running`` before the first trial and
-rewritten at the end with the status (``completed``, ``aborted``, ``failed``),
-the end time and the SHA-256 of each file; a session whose process died is
-marked ``interrupted`` by the next run that finds it (:func:`mark_dead_sessions`).
+The session record (``..._session.json``) is written with status ``running`` before
+the first trial and rewritten at the end with the status (``completed``,
+``aborted``, ``failed``), the end time and the SHA-256 of each file; a session
+whose process died is marked ``interrupted`` by the next run that finds it
+(:func:`mark_dead_sessions`).
 
-A new session is made whole in a hidden staging folder (``.ses-N.staging-PID``)
-and renamed into place, so a run killed while starting leaves either no session
-or a complete one. While a session runs, its ``session.lock`` is held
-(:mod:`vtexp.lock`): a second run of the same session is refused, naming the
-process that holds it. A session folder is never overwritten.
+A session exists when its record folder does. The record folder is made whole in a
+hidden staging folder (``.ses-N.staging-PID``, holding the record and the lock) and
+renamed into place, so a run killed while starting leaves either no session or one
+that resumes; the BIDS files follow, each created exclusively, and a resume rebuilds
+any that a kill left missing or cut short. The participant's row of
+``participants.tsv`` is written before the participant's folder appears. While a
+session runs, its ``session.lock`` is held (:mod:`vtexp.lock`): a second run of
+the same session is refused, naming the process that holds it. Nothing is ever
+overwritten.
 
 An experiment with camera stimuli (``camera: N``, ``video: FILE``) also keeps the
-frame taken at each such trial in ``stim/`` (and a live trial's record), named in the
-trial log's ``stim_file`` column (``vtexp.live.trial``).
+frame taken at each such trial in the record folder's ``stim/`` (and a live trial's
+record), named in the trial log's ``stim_file`` column (``vtexp.live.trial``).
+
+Data folders of vtexp before the BIDS layout (``sub-<P>/ses-<N>/session.json``
+beside the logs) are still read by :mod:`vtexp.analysis.load`; sessions are not
+added to them.
 """
 
 from __future__ import annotations
@@ -47,12 +65,13 @@ from .devices.base import DeviceBase
 from .errors import DeviceError, InputError, SessionAborted, SessionError
 from .experiment import LoadedExperiment
 from .lock import LOCK_NAME, SessionBusy, SessionLock
-from .log import TsvLog, fsync_dir, sha256_file, write_json_atomic
+from . import bids
+from .log import TsvLog, fsync_dir, sha256_file, tmp_name, write_json_atomic
 from .model import DeviceProfile, PlayReport, TrialRecord
 from .responders.base import Responder, call_hook, correct_answer
 
 PARTICIPANT = re.compile(r"^[A-Za-z0-9]{1,64}$")
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2     # 2: the BIDS layout (record in sourcedata/vtexp/)
 
 #: Participant ids that start with this (any case) belong to model participants only,
 #: so that a simulated session can never be taken for a person's.
@@ -97,18 +116,32 @@ def check_session(session: int) -> int:
     return session
 
 
+def record_of(folder: Path) -> Path | None:
+    """The session record in a record folder (``*_session.json``), or None."""
+    found = sorted(Path(folder).glob("*_session.json")) if Path(folder).is_dir() else []
+    return found[0] if found else None
+
+
+def legacy_sessions(root: Path | str) -> list[Path]:
+    """Sessions in the layout of vtexp before BIDS (``sub-*/ses-*/session.json``)."""
+    return sorted(Path(root).glob("sub-*/ses-*/session.json"))
+
+
 def list_sessions(data, experiment: str, participant: str) -> list[dict]:
     """The sessions of ``participant`` already in the data folder, by number: each a dict
-    with ``session``, ``status`` (from session.json, or ``unreadable``), ``logged``,
+    with ``session``, ``status`` (from the session record, or ``unreadable``), ``logged``,
     ``planned``, ``started`` and ``reason``."""
     found = []
-    folder = Path(data) / experiment / f"sub-{participant}"
-    for d in folder.glob("ses-*") if folder.is_dir() else ():
+    root = Path(data) / experiment
+    folder = root / bids.SOURCE / f"sub-{participant}"
+    old = [(sj.parent, sj) for sj in root.glob(f"sub-{participant}/ses-*/session.json")]
+    for d, record in [(d, record_of(d)) for d in (folder.glob("ses-*") if folder.is_dir()
+                                                   else ())] + old:
         m = re.fullmatch(r"ses-(\d+)", d.name)
         if not (m and d.is_dir()):
             continue
         try:
-            meta = json.loads((d / "session.json").read_text(encoding="utf-8"))
+            meta = json.loads(record.read_text(encoding="utf-8")) if record else {}
         except (OSError, ValueError):
             meta = {}
         meta = meta if isinstance(meta, dict) else {}
@@ -127,19 +160,21 @@ def mark_dead_sessions(data, experiment: str) -> list[dict]:
     """Sessions of ``experiment`` that say ``running`` but whose process has died (no one
     holds their lock) are marked ``interrupted``; staging folders left by a run killed
     while starting (no trial was played) are removed. Returns what was marked: dicts with
-    ``participant``, ``session``, ``logged``, ``planned``, ``dir``, ``reason``."""
+    ``participant``, ``session``, ``logged``, ``planned``, ``dir`` (the record folder),
+    ``record`` (the record file), ``reason``."""
     marked = []
     root = Path(data) / experiment
-    if not root.is_dir():
+    source = root / bids.SOURCE
+    if not source.is_dir():
         return marked
-    for staging in root.glob("sub-*/.ses-*.staging-*"):
+    for staging in source.glob("sub-*/.ses-*.staging-*"):
         try:
             lock = SessionLock.acquire(staging)
         except SessionError:
             continue                        # still being made by a live run
         lock.release()
         shutil.rmtree(staging, ignore_errors=True)
-    for sj in sorted(root.glob("sub-*/ses-*/session.json")):
+    for sj in sorted(source.glob("sub-*/ses-*/*_session.json")):
         d = sj.parent
         try:
             meta = json.loads(sj.read_text(encoding="utf-8"))
@@ -166,18 +201,25 @@ def mark_dead_sessions(data, experiment: str) -> list[dict]:
             write_json_atomic(sj, meta)
             marked.append({"participant": meta.get("participant"), "session": meta.get("session"),
                            "logged": meta.get("n_trials_logged"),
-                           "planned": meta.get("n_trials_planned"), "dir": d, "reason": reason})
+                           "planned": meta.get("n_trials_planned"), "dir": d, "record": sj,
+                           "reason": reason})
         finally:
             lock.release()
     return marked
 
 
-def recorded_run(paths_dir: Path | str) -> dict:
-    """How a session was run, from its session.json: ``device`` (the --device spec, or the
+def recorded_run(where) -> dict:
+    """How a session was run, from its record: ``device`` (the --device spec, or the
     backend for sessions recorded before specs were), ``responder`` (the --responder spec,
-    or None), ``data`` (the data folder), ``participant_kind``. Empty if unreadable."""
+    or None), ``data`` (the data folder), ``participant_kind``. Empty if unreadable.
+    ``where`` is a :class:`SessionPaths`, a record file or a record folder."""
+    if isinstance(where, SessionPaths):
+        record = where.session_json
+    else:
+        where = Path(where)
+        record = where if where.is_file() else (record_of(where) or where / "session.json")
     try:
-        meta = json.loads((Path(paths_dir) / "session.json").read_text(encoding="utf-8"))
+        meta = json.loads(record.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return {}
     if not isinstance(meta, dict):
@@ -196,14 +238,31 @@ def device_kind(spec_or_backend: str | None) -> str:
 
 @dataclass(frozen=True)
 class SessionPaths:
-    dir: Path
-    prefix: str
+    """Where one session's files are in its dataset (``root``, the experiment's folder)."""
+
+    root: Path
+    participant: str
+    session: int
+    task: str
 
     @classmethod
     def of(cls, data_dir: Path | str, experiment: str, task: str, participant: str,
            session: int) -> SessionPaths:
-        d = Path(data_dir) / experiment / f"sub-{participant}" / f"ses-{session}"
-        return cls(d, f"sub-{participant}_ses-{session}_task-{task}")
+        return cls(Path(data_dir) / experiment, participant, session, task)
+
+    @property
+    def prefix(self) -> str:
+        return f"sub-{self.participant}_ses-{self.session}_task-{self.task}"
+
+    @property
+    def dir(self) -> Path:
+        """The session's BIDS files: ``sub-<P>/ses-<N>/beh/``."""
+        return self.root / f"sub-{self.participant}" / f"ses-{self.session}" / "beh"
+
+    @property
+    def record_dir(self) -> Path:
+        """vtexp's record, lock and camera frames: ``sourcedata/vtexp/sub-<P>/ses-<N>/``."""
+        return self.root / bids.SOURCE / f"sub-{self.participant}" / f"ses-{self.session}"
 
     @property
     def beh_tsv(self) -> Path:
@@ -218,8 +277,16 @@ class SessionPaths:
         return self.dir / f"{self.prefix}_events.tsv"
 
     @property
+    def events_json(self) -> Path:
+        return self.dir / f"{self.prefix}_events.json"
+
+    @property
     def session_json(self) -> Path:
-        return self.dir / "session.json"
+        return self.record_dir / f"{self.prefix}_session.json"
+
+    def relative(self, path: Path) -> str:
+        """A file's path from the dataset's root, as the record names it."""
+        return path.relative_to(self.root).as_posix()
 
 
 DeviceFaultHandler = Callable[[DeviceError, Trial], str]
@@ -240,7 +307,7 @@ class SessionResult:
     seed: int = 0
 
 
-EVENT_COLUMNS = ["trial", "play", "row", "col", "scheduled_onset_ms", "onset_ms",
+EVENT_COLUMNS = ["onset", "duration", "trial", "play", "row", "col", "scheduled_onset_ms", "onset_ms",
                  "duration_ms", "level", "amplitude_v", "frequency_hz", "pulse_width_ms"]
 
 
@@ -263,6 +330,19 @@ def log_columns(lx: LoadedExperiment) -> list[str]:
     """The trial log's columns for this experiment."""
     return trial_columns(list(lx.experiment.factors), has_camera(lx),
                          lx.experiment.adaptive is not None)
+
+
+def task_fields(lx: LoadedExperiment) -> dict:
+    """What BIDS asks of every task sidecar (``_beh.json``, ``_events.json``)."""
+    exp = lx.experiment
+    return {"TaskName": exp.task_label, "TaskFullName": exp.title,
+            "TaskDescription": exp.description.strip() or exp.title,
+            "Instructions": exp.instructions.strip() or exp.asked()[0].prompt,
+            "StimulusPresentation": {
+                "SoftwareName": "vtexp", "SoftwareVersion": __version__,
+                "OperatingSystem": f"{platform.system()} {platform.release()}".strip(),
+                "Code": bids.CODE_URL},
+            "vtexpTask": exp.name}
 
 
 def sidecar(lx: LoadedExperiment) -> dict:
@@ -288,7 +368,8 @@ def sidecar(lx: LoadedExperiment) -> dict:
                                          "nearest the device can play to the one proposed"}}
            if exp.adaptive is not None else {}),
         **({"stim_file": {"Description": "camera stimuli: the frame taken at the trial (PNG), "
-                                         "relative to the session folder; a live trial's "
+                                         "relative to the session's record folder "
+                                         "sourcedata/vtexp/sub-<P>/ses-<N>/; a live trial's "
                                          "record is the folder of the same name + '-live'"}}
            if has_camera(lx) else {}),
         "question": {"Description": "name of the question answered (one row per question)",
@@ -309,9 +390,8 @@ def sidecar(lx: LoadedExperiment) -> dict:
                                   "had met its stop rule: nothing was played)"},
         "started_at": {"Description": "wall-clock start of the trial, ISO 8601"},
     })
-    return {"TaskName": exp.title, "TaskDescription": exp.description.strip(),
-            "Instructions": exp.instructions.strip() or exp.asked()[0].prompt,
-            "vtexpTask": exp.name, **cols}
+    # BIDS: TaskName is the task label of the file names; the title is TaskFullName.
+    return {**task_fields(lx), **cols}
 
 
 def _answer_description(questions: list) -> dict:
@@ -349,7 +429,8 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                 resume: bool = False, max_trials: int | None = None,
                 device_spec: str | None = None, responder_spec: str | None = None,
                 force_device: bool = False,
-                capture_prompt: Callable[[str], None] | None = None) -> SessionResult:
+                capture_prompt: Callable[[str], None] | None = None,
+                participant_info: dict[str, str] | None = None) -> SessionResult:
     """Run one session and log it. Raises SessionError if the session already exists.
 
     ``resume=True`` continues a session that did not finish (killed, crashed,
@@ -384,6 +465,11 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     ``capture_prompt(text)`` asks the experimenter to place a camera stimulus's object
     and returns when it is in place (``vtexp.live.trial``); camera stimuli without
     ``delay_s`` need it.
+
+    ``participant_info`` (field -> value: group, age, handedness, vision and the
+    experiment's ``participants:`` fields) is written to the dataset's
+    participants.tsv before the participant's folder appears; a participant already
+    there keeps their row (values it lacks are filled; a contradiction is refused).
     """
     exp = lx.experiment
     check_participant(participant)
@@ -398,7 +484,14 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     trials, seed = trial_list(exp, conditions, participant, session)
     adaptive = AdaptiveRun.of(lx, conditions, seed)
     paths = SessionPaths.of(data_dir, exp.name, exp.task_label, participant, session)
-    camera = _CameraTrials.of(lx, paths.dir, capture_prompt)
+    fields = bids.participant_fields(exp.participants)
+    info_given = bids.check_info(participant_info or {}, fields)
+    legacy = legacy_sessions(paths.root)
+    if legacy:
+        raise SessionError(f"{paths.root} holds sessions in the layout of vtexp before BIDS "
+                           f"(e.g. {legacy[0]}); new sessions are not added to it. Give "
+                           "another data folder (--data); vtexp analyze still reads this one")
+    camera = _CameraTrials.of(lx, paths.record_dir, capture_prompt)
     who = f"session {session} of participant {participant}"
     run_info = {"device_spec": device_spec or getattr(device, "backend", None) or "sim",
                 "responder_spec": responder_spec, "participant_kind": kind,
@@ -406,13 +499,21 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
 
     factors = list(exp.factors)
     if resume:
-        if not paths.dir.is_dir():
-            raise SessionError(f"there is no {who} in {paths.dir.parent} to resume"
+        if not paths.record_dir.is_dir():
+            rd = paths.record_dir
+            raise SessionError(f"there is no {who} in {paths.root} to resume"
                                + (" (a run was stopped while creating it, before any trial; "
                                   "start it without --resume)"
-                                  if list(paths.dir.parent.glob(f".{paths.dir.name}.staging-*"))
-                                  else ""))
-        lock = SessionLock.acquire(paths.dir, what=who)
+                                  if list(rd.parent.glob(f".{rd.name}.staging-*")) else ""))
+    # The dataset exists, and the participant has a row, before their folder appears.
+    try:
+        bids.ensure_dataset(paths.root, exp.name, exp.title, exp.reference)
+        bids.record_participant(paths.root, participant, info_given, fields)
+    except OSError as e:
+        raise SessionError(f"cannot write the dataset {paths.root}: "
+                           f"{e.strerror or e}") from None
+    if resume:
+        lock = SessionLock.acquire(paths.record_dir, what=who)
         try:
             info = device.open()
             record, beh, events, done = _reopen(paths, lx, participant, session, trials, seed,
@@ -429,6 +530,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
         done = 0
     result = SessionResult(paths, "running", seed=seed)
     status, reason = "failed", None
+    clock = _Timeline(record, paths, _last_event_s(paths.events_tsv) if resume else 0.0)
     try:
         call_hook(responder, "resume_at", done)
         call_hook(responder, "instructions", exp.instructions.strip() or exp.asked()[0].prompt)
@@ -436,22 +538,30 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
         for trial in todo:
             if adaptive is not None:
                 trial = _adaptive_trial(adaptive, trial)
+            wall = time.time()
             if trial.condition.schedule is None and not trial.condition.camera:
                 recs, plays = _stopped_records(exp, trial), []      # its track had stopped
             else:
                 recs, plays = _run_trial_pausing(exp, trial, device, responder,
                                                  on_device_error, camera)
+            if plays:
+                clock.anchor(wall, plays[0].started_at_ms)
             # The device events first, the trial's row last: the row is what makes a
             # trial complete, so a trial cut short leaves no row and is played again.
+            rows = []
             for i, rep in enumerate(plays):
                 for p in rep.pulses:
-                    events.append({"trial": trial.number, "play": i, "row": p.row, "col": p.col,
+                    rows.append({"onset": clock.seconds(rep.started_at_ms + p.onset_ms),
+                                   "duration": p.duration_ms / 1000.0,
+                                   "trial": trial.number, "play": i, "row": p.row, "col": p.col,
                                    "scheduled_onset_ms": p.scheduled_onset_ms,
                                    "onset_ms": rep.started_at_ms + p.onset_ms,
                                    "duration_ms": p.duration_ms, "level": p.level,
                                    "amplitude_v": p.train.amplitude_v if p.train else None,
                                    "frequency_hz": p.train.frequency_hz if p.train else None,
                                    "pulse_width_ms": p.train.pulse_width_ms if p.train else None})
+            # A trial's events in one write, in the order of their onsets (BIDS).
+            events.append_many(sorted(rows, key=lambda r: r["onset"]))
             extra = ({"proposed": trial.proposed, "presented": trial.presented}
                      if adaptive is not None else {})
             for rec in recs:                     # one row per question, the trial's last
@@ -489,8 +599,9 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                 events.close()
                 record.update(status=status, reason=reason, ended_at=now_iso(),
                               n_trials_logged=done + len({r.trial for r in result.records}),
-                              checksums={f.name: sha256_file(f) for f in
-                                         (paths.beh_tsv, paths.beh_json, paths.events_tsv)})
+                              checksums={paths.relative(f): sha256_file(f) for f in
+                                         (paths.beh_tsv, paths.beh_json, paths.events_tsv,
+                                          paths.events_json) if f.is_file()})
                 write_json_atomic(paths.session_json, record)
                 result.status = status
             finally:
@@ -523,8 +634,12 @@ def _new_record(lx: LoadedExperiment, participant: str, session: int, trials: li
         "process": _process(),
         "command": command or sys.argv,
         "environment": environment(),
-        "files": {"beh": paths.beh_tsv.name, "sidecar": paths.beh_json.name,
-                  "events": paths.events_tsv.name},
+        # Paths from the dataset's root (the record is in sourcedata/vtexp/sub-P/ses-N/).
+        "layout": "bids", "bids_version": bids.BIDS_VERSION,
+        "files": {"beh": paths.relative(paths.beh_tsv), "sidecar": paths.relative(paths.beh_json),
+                  "events": paths.relative(paths.events_tsv),
+                  "events_sidecar": paths.relative(paths.events_json)},
+        "acquisition_start": None,
         "checksums": None, "n_trials_logged": 0, "reason": None, "resumes": [],
     }
 
@@ -536,58 +651,105 @@ def _process() -> dict:
 def _create(paths: SessionPaths, lx, participant, session, trials, seed, conditions, device,
             responder, command, run_info, who, camera: bool = False
             ) -> tuple[SessionLock, dict, TsvLog, TsvLog]:
-    """Make a new session whole in a staging folder, then rename it into place.
+    """Make a new session: its record folder whole in a staging folder, renamed into place
+    (from then on the session exists), then its BIDS files, each created exclusively.
 
-    A run killed while this runs leaves a hidden staging folder and no session: the
-    next run removes it (:func:`mark_dead_sessions`) and the session starts afresh.
+    A run killed before the rename leaves a hidden staging folder and no session: the
+    next run removes it (:func:`mark_dead_sessions`) and the session starts afresh. A run
+    killed after it leaves a session that resumes: :func:`_reopen` rebuilds any BIDS
+    file that is missing or cut short (no trial was played yet).
     """
-    if paths.dir.exists():
+    if paths.record_dir.exists():
         _refuse_existing(paths, who)
-    staging = paths.dir.with_name(f".{paths.dir.name}.staging-{os.getpid()}")
+    if paths.dir.parent.exists():
+        raise SessionError(f"{paths.dir.parent} exists but vtexp has no record of it "
+                           f"(expected {paths.session_json}); nothing was overwritten. Use "
+                           "another --session number, or move that folder away")
+    rd = paths.record_dir
+    staging = rd.with_name(f".{rd.name}.staging-{os.getpid()}")
     try:
-        paths.dir.parent.mkdir(parents=True, exist_ok=True)
+        rd.parent.mkdir(parents=True, exist_ok=True)
         shutil.rmtree(staging, ignore_errors=True)
         staging.mkdir()
     except OSError as e:
-        raise SessionError(f"cannot create the session folder {paths.dir}: "
-                           f"{e.strerror}") from None
+        raise SessionError(f"cannot create the session folder {rd}: {e.strerror}") from None
     lock = None
+    renamed = False
     try:
         lock = SessionLock.acquire(staging, what=who)
         info = device.open()
-        staged = SessionPaths(staging, paths.prefix)
         record = _new_record(lx, participant, session, trials, seed, conditions, info,
                              device.profile, responder, command, run_info, paths)
-        write_json_atomic(staged.beh_json, sidecar(lx))
-        TsvLog(staged.beh_tsv, log_columns(lx)).close()
-        TsvLog(staged.events_tsv, EVENT_COLUMNS).close()
-        write_json_atomic(staged.session_json, record)
+        write_json_atomic(staging / paths.session_json.name, record)
         try:
-            os.rename(staging, paths.dir)          # atomic: all of the session, or none
+            os.rename(staging, rd)          # atomic: the session exists from here on
         except OSError:
-            if paths.dir.exists():
+            if rd.exists():
                 _refuse_existing(paths, who)
             raise
-        lock.move_to(paths.dir)
-        fsync_dir(paths.dir.parent)
-        beh, _, _ = TsvLog.reopen(paths.beh_tsv, log_columns(lx))
-        events, _, _ = TsvLog.reopen(paths.events_tsv, EVENT_COLUMNS)
+        renamed = True
+        lock.move_to(rd)
+        fsync_dir(rd.parent)
+        paths.dir.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(paths.beh_json, sidecar(lx))
+        write_json_atomic(paths.events_json, events_sidecar(lx))
+        beh = TsvLog(paths.beh_tsv, log_columns(lx))
+        events = TsvLog(paths.events_tsv, EVENT_COLUMNS)
         return lock, record, beh, events
     except BaseException:
         if lock is not None:
             lock.release()
-        shutil.rmtree(staging, ignore_errors=True)
+        if not renamed:
+            shutil.rmtree(staging, ignore_errors=True)
         raise
 
 
 def _refuse_existing(paths: SessionPaths, who: str):
-    holder = SessionLock.probe(paths.dir)
+    holder = SessionLock.probe(paths.record_dir)
     if holder is not None:
         from .lock import describe_holder
         raise SessionBusy(f"{who} is running now in another vtexp process "
                           f"({describe_holder(holder)}); nothing was touched.", holder)
-    raise SessionError(f"{who} already exists in {paths.dir}; nothing was overwritten. "
+    raise SessionError(f"{who} already exists in {paths.root}; nothing was overwritten. "
                        "Use --resume to continue it, or another --session number.")
+
+
+def events_sidecar(lx: LoadedExperiment) -> dict:
+    """The BIDS ``_events.json``: the task, and what each column of the device events means."""
+    return {**task_fields(lx), **{c: dict(bids.EVENTS_SIDECAR[c]) for c in EVENT_COLUMNS}}
+
+
+class _Timeline:
+    """Event onsets in seconds from the session's first stimulus.
+
+    Within a run the device's clock times the pulses; each run (a resume starts one) is
+    placed at the wall-clock time its first trial started, relative to the first run's.
+    The first stimulus of the session is recorded as ``acquisition_start``.
+    """
+
+    def __init__(self, record: dict, paths: SessionPaths, floor_s: float = 0.0):
+        self.record, self.paths, self.floor_s = record, paths, floor_s
+        self.offset_s: float | None = None
+        self.device_ms = 0.0
+
+    def anchor(self, wall: float, device_ms: float) -> None:
+        if self.offset_s is not None:
+            return
+        start = self.record.get("acquisition_start")
+        if not start:
+            self.offset_s = 0.0
+            self.record["acquisition_start"] = {"wall_time": wall, "at": now_iso()}
+        else:
+            # Not before the end of what was logged (the simulator's clock runs ahead).
+            self.offset_s = round(max(self.floor_s, wall - float(start["wall_time"])), 3)
+            if self.record.get("resumes"):
+                self.record["resumes"][-1]["onset_offset_s"] = self.offset_s
+        self.device_ms = device_ms
+        write_json_atomic(self.paths.session_json, self.record)
+
+    def seconds(self, device_ms: float) -> float:
+        """Seconds from the session's first stimulus of a device-clock time of this run."""
+        return (self.offset_s or 0.0) + (device_ms - self.device_ms) / 1000.0
 
 
 def _maybe_break(exp, trial: Trial, trials: list[Trial], responder: Responder) -> None:
@@ -617,13 +779,15 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
     """
     rebuilt: list[str] = []
     record = _read_record(paths)
+    for f in (paths.beh_json, paths.events_json):      # a sidecar's write cut short
+        tmp_name(f).unlink(missing_ok=True)
     if record is None:
         record = _new_record(lx, participant, session, trials, seed, conditions, info,
                              device.profile, responder, command, run_info, paths)
         record["started_at"] = None                 # not known any more
-        rebuilt.append("session.json (missing or unreadable; made anew from the experiment)")
-    stale_tmp = paths.session_json.with_name(paths.session_json.name + ".tmp")
-    stale_tmp.unlink(missing_ok=True)
+        rebuilt.append(f"{paths.session_json.name} (missing or unreadable; made anew from the "
+                       "experiment)")
+    tmp_name(paths.session_json).unlink(missing_ok=True)
     if record.get("status") == "completed":
         raise SessionError(f"session in {paths.dir} is already completed; nothing to resume")
     if record.get("experiment_file", {}).get("sha256") != lx.sha256:
@@ -653,9 +817,13 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
             "model" in (was_kind, run_info["participant_kind"]):
         raise SessionError(f"session {paths.dir} was answered by a {was_kind}, and cannot be "
                            f"continued by a {run_info['participant_kind']}; start a new session")
+    paths.dir.mkdir(parents=True, exist_ok=True)
     if not paths.beh_json.is_file():
         write_json_atomic(paths.beh_json, sidecar(lx))
         rebuilt.append(paths.beh_json.name)
+    if not paths.events_json.is_file():
+        write_json_atomic(paths.events_json, events_sidecar(lx))
+        rebuilt.append(paths.events_json.name)
     cols = trial_columns(factors, camera, adaptive is not None)
     if _needs_header(paths.beh_tsv):
         if _has_rows(paths.events_tsv):
@@ -691,7 +859,7 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
     if len(rows) % per_trial:                        # a trial cut short between questions
         beh.truncate_rows(done * per_trial)
     events, erows, cut_ev = TsvLog.reopen(paths.events_tsv, EVENT_COLUMNS)
-    keep = sum(1 for r in erows if int(r[0]) <= done)
+    keep = sum(1 for r in erows if int(r[EVENT_COLUMNS.index("trial")]) <= done)
     if keep < len(erows):
         events.truncate_rows(keep)          # events of the trial that was cut short
     record.setdefault("resumes", []).append({
@@ -712,48 +880,11 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
     return record, beh, events, done
 
 
-def _adaptive_trial(adaptive: AdaptiveRun, trial: Trial) -> Trial:
-    """The trial at the level its track proposes now, or without a schedule if the track
-    has stopped."""
-    import dataclasses
-
-    c = trial.condition
-    if not trial.practice and adaptive.finished(trial):
-        return dataclasses.replace(trial, condition=dataclasses.replace(c, schedule=None))
-    p = adaptive.propose(trial)
-    variable = adaptive.spec.variable
-    cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
-                               coding_params={**c.coding_params, variable: p.presented})
-    return dataclasses.replace(trial, condition=cond, proposed=p.proposed,
-                               presented=p.presented)
-
-
-def _stopped_records(exp, trial: Trial) -> list[TrialRecord]:
-    """The rows of a trial whose adaptive track had met its stop rule: nothing played."""
-    return [TrialRecord(trial=trial.number, repetition=trial.repetition,
-                        practice=trial.practice, block=trial.block, stimulus=trial.stimulus,
-                        condition=trial.levels, question=q.name, answer=None,
-                        correct_answer=correct_answer(q, trial), correct=None,
-                        status="stopped", started_at=now_iso()) for q in exp.asked()]
-
-
-def _replay_adaptive(adaptive: AdaptiveRun, rows: list[list[str]], cols: list[str],
-                     trials: list[Trial]) -> str | None:
-    """Replay the logged answers through the procedure; what differs first, if anything."""
-    for i, row in enumerate(rows):
-        d = dict(zip(cols, row, strict=False))
-        if d.get("question") != adaptive.question:
-            continue
-        trial = trials[int(d["trial"]) - 1]
-        problem = adaptive.replay(trial, d)
-        if problem:
-            return f"row {i + 1} (trial {trial.number}): {problem}"
-    return None
 
 
 def _read_record(paths: SessionPaths) -> dict | None:
     """session.json, or its staged copy left by a write cut short; None if neither reads."""
-    for f in (paths.session_json, paths.session_json.with_name("session.json.tmp")):
+    for f in (paths.session_json, tmp_name(paths.session_json)):
         try:
             data = json.loads(f.read_text(encoding="utf-8"))
         except (OSError, ValueError):

@@ -12,8 +12,14 @@ What is tolerated and what is refused (decided for issue 6):
   **aborted/failed** keeps every trial it logged, and is reported; its files
   have no checksums to verify (``checksum = "not recorded"``);
 - a file or folder that is **not a vtexp log** is refused with a message
-  saying what was expected (a folder holding ``session.json`` of format
-  ``vtexp-session`` and a trial log with ``trial`` and ``answer`` columns).
+  saying what was expected (a session record of format ``vtexp-session`` and a
+  trial log with ``trial`` and ``answer`` columns).
+
+Both layouts are read (issue 14): the BIDS dataset vtexp writes now (the record
+``sourcedata/vtexp/sub-P/ses-N/*_session.json`` names the files from the dataset's
+root, ``sub-P/ses-N/beh/``) and the layout before it (``sub-P/ses-N/session.json``
+beside the logs, names from that folder); ``vtexp.analysis.pool`` reads many
+datasets at once through DuckDB into the same table.
 
 Decided for issue 13:
 
@@ -49,6 +55,8 @@ class SessionData:
     checksum: str = "verified"          # verified | MISMATCH | not recorded | file missing
     mismatched: list[str] = field(default_factory=list)
     duplicated_trials: list[int] = field(default_factory=list)
+    root: Path | None = None            # the dataset (the experiment's data folder)
+    record: Path | None = None          # the session record (session.json)
 
     @property
     def status(self) -> str:
@@ -74,28 +82,61 @@ class SessionData:
         return {name: list(f["levels"]) for name, f in factors.items()}
 
 
+#: Where vtexp keeps its session records in a BIDS dataset (vtexp.bids.SOURCE).
+SOURCE_PARTS = ("sourcedata", "vtexp")
+_SESSION_FILES = ("_beh.tsv", "_events.tsv", "_beh.json", "_events.json")
+
+
+def _is_record(path: Path) -> bool:
+    """A session record: ``session.json`` (the layout before BIDS) or
+    ``sourcedata/vtexp/sub-P/ses-N/*_session.json``."""
+    if path.name == "session.json":
+        return True
+    return (path.name.endswith("_session.json") and len(path.parents) >= 4
+            and path.parents[3].name == SOURCE_PARTS[0] and path.parents[2].name == SOURCE_PARTS[1])
+
+
+def _records_in(folder: Path) -> list[Path]:
+    """The session records of a session folder of either layout, or []."""
+    if (folder / "session.json").is_file():
+        return [folder / "session.json"]
+    own = sorted(f for f in folder.glob("*_session.json") if _is_record(f))
+    if own:
+        return own
+    # A BIDS session folder (sub-P/ses-N or sub-P/ses-N/beh): its record in sourcedata/.
+    ses = folder.parent if folder.name == "beh" else folder
+    if ses.name.startswith("ses-") and ses.parent.name.startswith("sub-"):
+        rec = ses.parents[1].joinpath(*SOURCE_PARTS, ses.parent.name, ses.name)
+        return sorted(f for f in rec.glob("*_session.json") if _is_record(f))
+    return []
+
+
 def find_sessions(paths: list[Path | str]) -> list[Path]:
-    """Session folders (holding ``session.json``) at or below each path, sorted."""
+    """Session records at or below each path (a dataset, a folder of datasets, a session
+    folder of either layout, or a record), sorted."""
     found: list[Path] = []
     for p in map(Path, paths):
         if not p.exists():
             raise InputError("no such file or folder", path=str(p))
         if p.is_file():
-            if p.name.endswith(("_beh.tsv", "_events.tsv", "_beh.json")):
+            if _is_record(p):
+                found.append(p)
+                continue
+            if p.name.endswith(_SESSION_FILES):
                 raise InputError("this is one file of a session; give the session folder "
-                                 f"({p.parent}) so that it can be checked against "
-                                 "session.json", path=str(p))
-            if p.name != "session.json":
-                raise InputError("not a vtexp session folder (expected a folder holding "
-                                 "session.json)", path=str(p))
-            found.append(p.parent)
-        elif (p / "session.json").is_file():
-            found.append(p)
-        else:
-            # Hidden folders hold no session: a session being started is staged in one.
-            found.extend(sorted(q.parent for q in p.rglob("session.json")
-                                if not any(part.startswith(".")
-                                           for part in q.parent.relative_to(p).parts)))
+                                 f"({p.parent}) so that it can be checked against its "
+                                 "record", path=str(p))
+            raise InputError("not a vtexp session folder (expected a BIDS dataset written by "
+                             "vtexp, a folder holding such datasets, or session folders "
+                             "holding session.json)", path=str(p))
+        own = _records_in(p)
+        if own:
+            found.extend(own)
+            continue
+        # Hidden folders hold no session: a session being started is staged in one.
+        found.extend(sorted(q for q in p.rglob("*session.json")
+                            if _is_record(q) and not any(
+                                part.startswith(".") for part in q.parent.relative_to(p).parts)))
     seen, out = set(), []
     for d in found:
         r = d.resolve()
@@ -105,18 +146,37 @@ def find_sessions(paths: list[Path | str]) -> list[Path]:
     return out
 
 
-def read_session(d: Path | str) -> SessionData:
-    """Read one session folder; problems that lose nothing become warnings."""
-    d = Path(d)
-    meta_path = d / "session.json"
+def read_record(path: Path | str) -> SessionData:
+    """A session's record and what it says of its files (checksums verified); the trial
+    table is left empty (:func:`read_session` and the pooled reader fill it)."""
+    path = Path(path)
+    if path.is_dir():
+        records = _records_in(path)
+        if len(records) != 1:
+            raise InputError("not a vtexp session folder (expected session.json, or a BIDS "
+                             "session folder whose record is in sourcedata/vtexp/)"
+                             if not records else "holds several sessions' records; give one",
+                             path=str(path))
+        path = records[0]
     try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        meta = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise InputError(f"cannot read session.json: {e}", path=str(meta_path)) from None
+        raise InputError(f"cannot read the session record: {e}", path=str(path)) from None
     if not isinstance(meta, dict) or meta.get("format") != "vtexp-session":
         raise InputError("not a vtexp session record (no 'format: vtexp-session')",
-                         path=str(meta_path))
+                         path=str(path))
+    bids = meta.get("layout") == "bids"
+    # The record names files from the dataset's root (BIDS) or from its own folder (before).
+    base = path.parents[4] if bids else path.parent
     warnings: list[str] = []
+    try:
+        beh = base / meta["files"]["beh"]
+        for key in ("experiment", "participant", "session"):
+            meta[key]
+    except (KeyError, TypeError) as e:
+        raise InputError(f"the session record lacks {e} (written by another program or "
+                         "edited by hand?)", path=str(path)) from None
+    d = beh.parent if bids else path.parent
     status = meta.get("status")
     if status == "running":
         warnings.append(f"{d}: the session did not close (process killed or crashed); "
@@ -124,37 +184,46 @@ def read_session(d: Path | str) -> SessionData:
     elif status != "completed":
         warnings.append(f"{d}: session {status}"
                         + (f" ({meta['reason']})" if meta.get("reason") else ""))
-    try:
-        beh = d / meta["files"]["beh"]
-        for key in ("experiment", "participant", "session"):
-            meta[key]
-    except (KeyError, TypeError) as e:
-        raise InputError(f"session.json lacks {e} (written by another program or "
-                         "edited by hand?)", path=str(meta_path)) from None
     if not beh.is_file():
-        raise InputError("the trial log named in session.json is missing", path=str(beh))
+        raise InputError("the trial log named in the session record is missing", path=str(beh))
     checksums = meta.get("checksums") or {}
     checksum = "verified" if checksums else "not recorded"
     mismatched: list[str] = []
     for name, digest in checksums.items():
-        f = d / name
+        f = base / name
         if not f.is_file():
-            warnings.append(f"{f}: listed in session.json but missing")
+            warnings.append(f"{f}: listed in the session record but missing")
             checksum = "file missing" if checksum == "verified" else checksum
         elif sha256_file(f) != digest:
             warnings.append(f"{f}: changed since the session ended (checksum differs)")
             mismatched.append(str(f))
             checksum = "MISMATCH"
-    text = beh.read_bytes().decode("utf-8", errors="replace")
-    if text and not text.endswith("\n"):
-        cut = text.rfind("\n") + 1
-        warnings.append(f"{beh}: last row is incomplete (cut off mid-write) and was ignored")
-        text = text[:cut]
-    header = text.split("\n", 1)[0].split("\t")
+    root = path.parents[4] if bids else path.parents[2] if len(path.parents) > 2 else None
+    return SessionData(d, meta, pd.DataFrame(), warnings, checksum, mismatched, root=root,
+                       record=path)
+
+
+def beh_path(s: SessionData) -> Path:
+    base = s.record.parents[4] if s.meta.get("layout") == "bids" else s.record.parent
+    return base / s.meta["files"]["beh"]
+
+
+def events_path(s: SessionData) -> Path | None:
+    name = str((s.meta.get("files") or {}).get("events", ""))
+    if not name:
+        return None
+    base = s.record.parents[4] if s.meta.get("layout") == "bids" else s.record.parent
+    return base / name
+
+
+def typed_trials(df: pd.DataFrame, s: SessionData) -> pd.DataFrame:
+    """A trial log's rows (all strings, n/a missing) as the tidy table's columns: numbers
+    typed, duplicates found, experiment/participant/session in front."""
+    beh = beh_path(s)
+    header = list(df.columns)
     if "trial" not in header or "answer" not in header:
         raise InputError("not a vtexp trial log (no 'trial' and 'answer' columns)", path=str(beh))
-    df = pd.read_csv(io.StringIO(text), sep="\t", dtype=str, na_values=[NA],
-                     keep_default_na=False)
+    df = df.copy()
     for col in ("trial", "repetition", "replays", "n_pulses"):
         df[col] = pd.to_numeric(df[col], errors="coerce").astype("Int64")
     for col in ("practice", "correct"):
@@ -165,21 +234,40 @@ def read_session(d: Path | str) -> SessionData:
         else df.duplicated(["trial"], keep="first")
     duplicated = sorted({int(t) for t in df.loc[dup, "trial"].dropna()})
     if duplicated:
-        warnings.append(f"{beh}: {int(dup.sum())} rows log a trial a second time (trials "
-                        f"{_ranges(duplicated)}): two runs of the session wrote at once")
-    events = d / str((meta.get("files") or {}).get("events", ""))
-    if events.is_file() and events.name:
+        s.warnings.append(f"{beh}: {int(dup.sum())} rows log a trial a second time (trials "
+                          f"{_ranges(duplicated)}): two runs of the session wrote at once")
+    s.duplicated_trials = duplicated
+    events = events_path(s)
+    if events is not None and events.is_file():
         lines = events.read_bytes().split(b"\n")[1:]
         lines = [ln for ln in lines if ln]
         extra = len(lines) - len(set(lines))
         if extra:
-            warnings.append(f"{events}: {extra} device events are logged twice")
+            s.warnings.append(f"{events}: {extra} device events are logged twice")
+    meta = s.meta
     df.insert(0, "session", int(meta["session"]))
     df.insert(0, "participant", str(meta["participant"]))
     df.insert(0, "experiment", str(meta["experiment"]))
-    data = SessionData(d, meta, df, warnings, checksum, mismatched)
-    data.duplicated_trials = duplicated
-    return data
+    return df
+
+
+def read_session(d: Path | str) -> SessionData:
+    """Read one session (its folder in either layout, or its record); problems that lose
+    nothing become warnings."""
+    s = read_record(d)
+    beh = beh_path(s)
+    text = beh.read_bytes().decode("utf-8", errors="replace")
+    if text and not text.endswith("\n"):
+        cut = text.rfind("\n") + 1
+        s.warnings.append(f"{beh}: last row is incomplete (cut off mid-write) and was ignored")
+        text = text[:cut]
+    header = text.split("\n", 1)[0].split("\t")
+    if "trial" not in header or "answer" not in header:
+        raise InputError("not a vtexp trial log (no 'trial' and 'answer' columns)", path=str(beh))
+    df = pd.read_csv(io.StringIO(text), sep="\t", dtype=str, na_values=[NA],
+                     keep_default_na=False)
+    s.trials = typed_trials(df, s)
+    return s
 
 
 def _ranges(numbers: list[int]) -> str:
@@ -209,9 +297,19 @@ def load_sessions(paths: list[Path | str], *, include_practice: bool = False,
     """
     dirs = find_sessions(paths)
     if not dirs:
-        raise InputError("no vtexp sessions found (no session.json below "
+        raise InputError("no vtexp sessions found (no session record below "
                          + ", ".join(map(str, paths)) + ")")
     sessions = [read_session(d) for d in dirs]
+    return combine_sessions(sessions, include_practice=include_practice, strict=strict,
+                            duplicates=duplicates, include_simulated=include_simulated,
+                            notes=notes)
+
+
+def combine_sessions(sessions: list[SessionData], *, include_practice: bool = False,
+                     strict: bool = False, duplicates: str = "error",
+                     include_simulated: bool = False, notes: list[str] | None = None
+                     ) -> tuple[pd.DataFrame, list[SessionData]]:
+    """The tidy table of sessions already read (:func:`load_sessions`' second half)."""
     notes = notes if notes is not None else []
     twice = [s for s in sessions if s.duplicated_trials]
     if twice and duplicates != "first":

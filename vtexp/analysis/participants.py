@@ -5,8 +5,11 @@ It comes either from a column of the trial table that is constant within a
 participant, or from a participants table in the form of BIDS'
 ``participants.tsv``: a ``participant_id`` column (``sub-01``; the ``sub-``
 prefix is optional here) and one column per property, ``n/a`` for a missing
-value. :func:`join_participants` is the one place where the two meet, so the
-session engine's participants.tsv (issue 14, part 1) plugs in here.
+value. :func:`join_participants` is the one place where the two meet: the
+participants.tsv that vtexp writes at the root of each dataset (group, age,
+handedness, vision and the experiment's ``participants:`` fields, asked at each
+participant's first session; :mod:`vtexp.bids`) gives the analyses their
+between-participant factors here.
 """
 
 from __future__ import annotations
@@ -29,7 +32,23 @@ def read_participants(path) -> pd.DataFrame:
     p = Path(path)
     if not p.is_file():
         raise InputError("no such participants table", path=str(p))
-    t = pd.read_csv(p, sep="\t", dtype=str, keep_default_na=False, na_values=["n/a", ""])
+    try:
+        t = pd.read_csv(p, sep="\t", dtype=str, keep_default_na=False, na_values=["n/a", ""],
+                        encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError("cannot read the participants table: not UTF-8 text",
+                         path=str(p)) from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError) as e:
+        reason = str(e).strip().splitlines()[-1] if str(e).strip() else "no header"
+        raise InputError(f"cannot read the participants table as tab-separated values: "
+                         f"{reason}", path=str(p)) from None
+    except OSError as e:
+        raise InputError(f"cannot read the participants table: {e.strerror}",
+                         path=str(p)) from None
+    if "participant_id" not in t.columns:
+        raise InputError("the participants table has no 'participant_id' column (BIDS "
+                         f"participants.tsv); its columns are {', '.join(t.columns)}",
+                         path=str(p))
     return t
 
 

@@ -293,14 +293,14 @@ def _where_text(where: dict) -> str:
 def participants_table(sessions: list[SessionData]):
     """The participants table (BIDS ``participants.tsv``) of the sessions' dataset, or None.
 
-    Looked for in each session's dataset root (``<root>/sub-*/ses-*``) and the
-    folders above it. Issue 14 part 1 makes vtexp write it; until then a lab can
-    put one there by hand.
+    The one vtexp writes at the root of the sessions' dataset; for data folders of
+    the layout before BIDS, one a lab put in the folder of the sessions or above it.
     """
     from .participants import read_participants
     seen = set()
     for s in sessions:
-        for folder in list(Path(s.dir).parents)[1:4]:
+        roots = [s.root] if getattr(s, "root", None) is not None else []
+        for folder in roots + list(Path(s.dir).parents)[1:4]:
             f = folder / "participants.tsv"
             if f in seen:
                 continue
@@ -325,7 +325,15 @@ def _with_groups(trials: pd.DataFrame, sessions: list[SessionData], names: list[
     if missing:
         raise InputError(f"{path}: no column {', '.join(map(repr, missing))} (its columns: "
                          f"{', '.join(table.columns)})")
-    return join_participants(trials, table[["participant_id", *lacking]], "participant")
+    joined = join_participants(trials, table[["participant_id", *lacking]], "participant")
+    for n in lacking:
+        unknown = sorted(joined.loc[joined[n].isna(), "participant"].astype(str).unique())
+        if unknown:
+            raise InputError(f"{path}: {n} is n/a for participant(s) "
+                             f"{', '.join('sub-' + u for u in unknown[:8])}; the analysis "
+                             f"needs it (give it at the first session: vtexp run "
+                             f"--participant-info {n}=..., or fill it in participants.tsv)")
+    return joined
 
 
 def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experiment: str, *,

@@ -1,4 +1,9 @@
-"""``vtexp analyze``: statistics, figures and a report from logged sessions."""
+"""``vtexp analyze``: statistics, figures and a report from logged sessions.
+
+The report of a dataset goes to its ``derivatives/vtexp/`` (a BIDS derivative
+dataset with its own dataset_description.json); ``--pool GLOB`` reads many labs'
+datasets at once through DuckDB (the ``pool`` extra, :mod:`vtexp.analysis.pool`).
+"""
 
 from __future__ import annotations
 
@@ -13,10 +18,23 @@ def cmd_analyze(args) -> int:
     from ..analysis import load_sessions, recognition_rates
     from ..analysis.report import markdown_table, write_reports
 
+    from .. import bids
+
     notes: list[str] = []
-    trials, sessions = load_sessions(args.dirs, strict=args.strict,
-                                     duplicates="first" if args.drop_duplicates else "error",
-                                     include_simulated=args.include_simulated, notes=notes)
+    if not args.dirs and not args.pool:
+        raise InputError("give the data: dataset or session folders (DIR ...), or --pool GLOB")
+    options = dict(strict=args.strict, duplicates="first" if args.drop_duplicates else "error",
+                   include_simulated=args.include_simulated, notes=notes)
+    if args.pool:
+        from ..analysis.pool import for_analysis, load_pooled
+
+        patterns = list(args.pool) + list(args.dirs)
+        trials, sessions = load_pooled(patterns, **options)
+        out(f"pooled {trials['dataset'].nunique()} dataset(s) through DuckDB: "
+            + ", ".join(map(str, trials["dataset"].unique())))
+        trials = for_analysis(trials, sessions, notes)
+    else:
+        trials, sessions = load_sessions(args.dirs, **options)
     for note in notes:
         print(f"vtexp: note: {note}", file=sys.stderr)
     for s in sessions:
@@ -30,11 +48,18 @@ def cmd_analyze(args) -> int:
         if exp.analysis is None:
             raise InputError("has no 'analysis:' section to use", path=args.experiment)
         specs[exp.name] = exp.analysis
+    roots = {s.root for s in sessions if s.root is not None and bids.is_dataset(s.root)}
     if args.out:
         out_dir = Path(args.out)
-    else:
-        first = Path(args.dirs[0])
+    elif not args.pool and len(roots) == 1:
+        out_dir = next(iter(roots)) / bids.DERIVATIVE     # BIDS: reports are derivatives
+    elif not args.pool and not roots:
+        first = Path(args.dirs[0])                        # the layout before BIDS
         out_dir = (first if not (first / "session.json").exists() else Path(".")) / "report"
+    else:
+        out_dir = Path("report")
+    if out_dir.resolve() in {(r / bids.DERIVATIVE).resolve() for r in roots}:
+        bids.ensure_derivative(out_dir, next(iter(roots)).name)
     rep, full = write_reports(trials, sessions, out_dir, specs=specs)
     for exp in sorted(trials["experiment"].unique()):
         sub = trials[trials["experiment"] == exp]
@@ -64,9 +89,15 @@ def cmd_analyze(args) -> int:
 def register(sub) -> None:
     """Add ``vtexp analyze`` to the ``vtexp`` parser."""
     s = sub.add_parser("analyze", help="statistics and reports from logged sessions")
-    s.add_argument("dirs", nargs="+", metavar="DIR",
-                   help="session folders, or folders holding them (any mix)")
-    s.add_argument("--out", help="folder for the tables and report")
+    s.add_argument("dirs", nargs="*", metavar="DIR",
+                   help="datasets (DATA/<experiment>), session folders, or folders holding "
+                        "them (any mix; the layout before BIDS too)")
+    s.add_argument("--pool", action="append", metavar="GLOB",
+                   help="pool every dataset the glob matches (quote it: --pool 'labs/*/'), "
+                        "read through DuckDB (the 'pool' extra) with a dataset column; "
+                        "each dataset's participants.tsv gives its participants' groups")
+    s.add_argument("--out", help="folder for the tables and report (default: the dataset's "
+                                 "derivatives/vtexp/; ./report for several datasets)")
     s.add_argument("--experiment", metavar="FILE",
                    help="use this experiment file's 'analysis:' section instead of the one "
                         "recorded in the sessions")

@@ -42,6 +42,7 @@ def _headline(analysis) -> str:
 def cmd_demo(args) -> int:
     import pandas as pd
 
+    from .. import bids
     from ..analysis import load_sessions
     from ..analysis.report import write_reports
     from ..compile import compile_conditions
@@ -85,9 +86,16 @@ def cmd_demo(args) -> int:
             f"{reps} repetition{'s' if reps > 1 else ''} = {n_trials} trials per participant: "
             "logged")
         summary.append((name, exp, n_trials))
-    names = [n for n, _ in DEMO_STUDIES]
-    trials, sessions = load_sessions([root / n for n in names])
-    _, full = write_reports(trials, sessions, root / "report")
+    # Each study's sessions are a BIDS dataset; its report is a derivative of it.
+    full = {}
+    frames = []
+    for name, _ in DEMO_STUDIES:
+        trials, sessions = load_sessions([root / name])
+        reports = root / name / bids.DERIVATIVE
+        bids.ensure_derivative(reports, name)
+        full.update(write_reports(trials, sessions, reports)[1])
+        frames.append(trials)
+    trials = pd.concat(frames, ignore_index=True)
     out("\nWhat the model participants did, and the first test each study declares:")
     for name, exp, n_trials in summary:
         a = full[name]["analysis"]
@@ -102,11 +110,12 @@ def cmd_demo(args) -> int:
         out(f"  {name:<24} {args.participants} x {n_trials} trials, {what}")
         out(f"  {'':<24} {_headline(a)}")
     out(f"\nTook {time.perf_counter() - t0:.0f} s. Everything is in {root}/:")
-    out(f"  {root}/<study>/sub-*/ses-1/   the logs a real session writes (trials .tsv, "
-        "sidecar .json, device events .tsv, session.json)")
-    out(f"  {root}/experiments/           the short versions that were run")
-    out(f"  {root}/report/                the report: {root}/report/report.md, and per "
-        "study an HTML page with figures and tables:")
+    out(f"  {root}/<study>/               a BIDS dataset per study, as a real session "
+        "writes it:")
+    out(f"  {'':<28}participants.tsv, sub-*/ses-1/beh/ (trials, device events, sidecars),")
+    out(f"  {'':<28}sourcedata/vtexp/ (session records)")
+    out(f"  {root}/<study>/derivatives/vtexp/  the report: report.md, and an HTML page with "
+        "figures and tables:")
     for name, _, _ in summary:
         out(f"      {full[name]['html']}")
     out("\nNext: how many participants would a study need?")

@@ -25,7 +25,7 @@ def status_of(x: dict) -> str:
     status = {"running": "running now" if x.get("held_by") else "did not close (killed?)",
               "interrupted": "interrupted (its process died)"}.get(x["status"], x["status"])
     if x["planned"] is None:
-        return f"{status}, no session.json"
+        return f"{status}, no session record"
     return f"{status}, {x['logged']} of {x['planned']} trials"
 
 
@@ -51,6 +51,36 @@ def ask_participant() -> str:
             return check_participant(answer)
         except InputError as e:
             print(f"  {e.message}", flush=True)
+
+
+def ask_participant_info(participant: str, fields: dict[str, dict], given: dict[str, str],
+                         where: Path) -> dict[str, str]:
+    """At a participant's first session: each field of participants.tsv not given as an
+    option, asked in turn; Enter leaves it n/a, a wrong value is asked again."""
+    from .. import bids
+
+    todo = [name for name in fields if name not in given]
+    if not todo:
+        return given
+    out(f"Participant {participant} is new to {where.parent}; what {where.name} records "
+        "(Enter leaves a field n/a):")
+    info = dict(given)
+    for name in todo:
+        f = fields[name]
+        hint = (", ".join(f["levels"]) if f.get("levels") else
+                f"a number{' in ' + f['units'] + 's' if f.get('units') else ''}"
+                if f.get("type") == "number" else "one word")
+        while True:
+            try:
+                answer = input(f"  {name} ({hint}): ").strip()
+            except (EOFError, OSError):     # input ended: the rest stays n/a
+                return info
+            try:
+                info[name] = bids.check_value(name, f, answer)
+                break
+            except ValueError as e:
+                print(f"    {e}", flush=True)
+    return info
 
 
 def ask_session(participant: str, existing: list[dict], args, lx) -> tuple[int, bool]:

@@ -5,7 +5,7 @@ is offered to be continued), the device check before the first trial, the
 session itself with a progress line per trial, and the experimenter's choices
 when the device fails (:mod:`vtexp.cli.prompts`).
 
-A resumed session takes its device and responder from its ``session.json``
+A resumed session takes its device and responder from its session record
 unless given, and refuses a device of another kind (``sim``, ``serial``,
 ``emulator``) than the one it ran on without ``--force-device``. Whenever a run
 ends before the session does (Escape, Ctrl-C, a device fault, a crash, or a
@@ -23,8 +23,8 @@ from pathlib import Path
 
 from ..errors import InputError
 from ._io import out, program
-from .prompts import (ask_experimenter, ask_participant, ask_session, place_object,
-                      status_of, yes)
+from .prompts import (ask_experimenter, ask_participant, ask_participant_info, ask_session,
+                      place_object, status_of, yes)
 
 
 def time_left_s(first_start: float, now: float, trials_done: int, trials_left: int,
@@ -95,7 +95,7 @@ def resume_command(file, participant: str, session: int, device: str | None,
 
 def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet, conds=None,
              resume=False, *, check_device=False, test_pulse=False, max_trials=None,
-             force_device=False):
+             force_device=False, participant_info=None):
     from ..devices import open_device
     from ..model import DeviceProfile
     from ..responders import make_responder
@@ -115,7 +115,8 @@ def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet,
                            on_device_error=ask_experimenter if sys.stdin.isatty() else None,
                            resume=resume, max_trials=max_trials, device_spec=device_spec,
                            responder_spec=responder_spec, force_device=force_device,
-                           capture_prompt=place_object if sys.stdin.isatty() else None)
+                           capture_prompt=place_object if sys.stdin.isatty() else None,
+                           participant_info=participant_info)
 
 
 def _check_device(device, profile, test_pulse: bool) -> None:
@@ -155,7 +156,7 @@ def _report_dead(args, lx) -> None:
     from ..session import mark_dead_sessions, recorded_run
 
     for x in mark_dead_sessions(args.data, lx.experiment.name):
-        rec = recorded_run(x["dir"])
+        rec = recorded_run(x["record"])
         out(f"Session {x['session']} of participant {x['participant']} did not close "
             f"({x['logged']} of {x['planned']} trials logged): {x['reason']}. It is marked "
             "interrupted. To continue it:\n  "
@@ -215,19 +216,41 @@ def _specs(args, lx, participant: str, session: int, resume: bool) -> tuple[str,
     device, responder = args.device, args.responder
     if resume:
         rec = recorded_run(SessionPaths.of(args.data, lx.experiment.name, lx.experiment.task_label,
-                                           participant, session).dir)
+                                           participant, session))
         if device is None and rec.get("device"):
             device = rec["device"]
-            out(f"device as recorded in session.json: {device}")
+            out(f"device as recorded in the session record: {device}")
         if responder is None and rec.get("responder"):
             responder = rec["responder"]
-            out(f"responder as recorded in session.json: {responder}")
+            out(f"responder as recorded in the session record: {responder}")
     if responder is None:
         raise InputError("missing: who answers, e.g. --responder window (the participant's "
                          "window) or --responder console"
-                         + (" (this session's session.json does not record it)" if resume
+                         + (" (this session's record does not say)" if resume
                             else ""), key="--responder")
     return device or "sim", responder
+
+
+def _participant_info(args, lx, participant: str) -> dict[str, str]:
+    """What participants.tsv records of the participant: ``--participant-info``, and at a
+    terminal, for a participant the dataset does not know yet, the fields not given
+    (never asked of model participants, nor without a terminal)."""
+    from .. import bids
+    from ..errors import SessionAborted
+    from ..session import SIMULATED_PREFIX
+
+    exp = lx.experiment
+    fields = bids.participant_fields(exp.participants)
+    info = bids.check_info(bids.parse_info(args.participant_info), fields)
+    root = Path(args.data) / exp.name
+    known = bids.known_participant(root, participant)
+    if known is not None or not sys.stdin.isatty() or \
+            participant.lower().startswith(SIMULATED_PREFIX):
+        return info
+    try:
+        return ask_participant_info(participant, fields, info, root / bids.PARTICIPANTS)
+    except KeyboardInterrupt:
+        raise SessionAborted("stopped at the prompt; nothing was played or written") from None
 
 
 def cmd_run(args) -> int:
@@ -243,12 +266,13 @@ def cmd_run(args) -> int:
     _report_dead(args, lx)
     participant, session, resume = _who_and_which(args, lx)
     device, responder = _specs(args, lx, participant, session, resume)
+    info = _participant_info(args, lx, participant)
     paths = SessionPaths.of(args.data, lx.experiment.name, lx.experiment.task_label,
                             participant, session)
 
     def hint() -> str | None:
         """How to continue the session, if this run left it unfinished."""
-        rec = recorded_run(paths.dir)
+        rec = recorded_run(paths)
         if not rec or rec.get("status") == "completed":
             return None
         return (f"To continue session {session} of participant {participant} where it "
@@ -259,7 +283,7 @@ def cmd_run(args) -> int:
     res = _run_one(lx, participant, session, device, responder,
                    args.data, args.quiet, conds, resume=resume, check_device=True,
                    test_pulse=args.test_pulse, max_trials=args.max_trials,
-                   force_device=args.force_device)
+                   force_device=args.force_device, participant_info=info)
     acc = [r.correct for r in res.records if r.correct is not None]
     n = len({r.trial for r in res.records})
     out(f"session {res.status}: {n} trials logged in {res.paths.dir}"
@@ -284,7 +308,7 @@ def register(sub) -> None:
     s.add_argument("--device",
                    help="sim (default), sim:realtime, serial:PORT or emulator; checked before "
                         "the first trial (identity, round trip, all actuators off). With "
-                        "--resume, the one recorded in session.json unless given")
+                        "--resume, the one recorded in the session record unless given")
     s.add_argument("--responder",
                    help="who answers: console (in this terminal) | scripted:correct | "
                         "scripted:random | scripted:accuracy=P | scripted:answers=FILE | "
@@ -296,12 +320,19 @@ def register(sub) -> None:
                         "lang=LANG (espeak-ng's), noise=on|off (masking noise during each "
                         "stimulus), e.g. window:windowed,size=1024x768 or "
                         "window:audio,lang=de; needs the 'gui' extra). Required, except "
-                        "with --resume, which takes the one recorded in session.json")
-    s.add_argument("--data", default="data", help="data folder (default: ./data)")
+                        "with --resume, which takes the one recorded in the session record")
+    s.add_argument("--participant-info", metavar="FIELD=VALUE,...",
+                   help="what the dataset's participants.tsv records of a new participant, "
+                        "e.g. group=blind,age=34,handedness=right,vision=blind (and the "
+                        "experiment's own 'participants:' fields); at a terminal the fields "
+                        "not given are asked at the participant's first session")
+    s.add_argument("--data", default="data",
+                   help="data folder (default: ./data); each experiment's sessions form the "
+                        "BIDS dataset DATA/<experiment>/")
     s.add_argument("--quiet", "-q", action="store_true", help="no per-trial progress")
     s.add_argument("--resume", action="store_true",
                    help="continue this participant's unfinished session at its next trial, "
-                        "with the device and responder recorded in its session.json unless "
+                        "with the device and responder recorded in its session record unless "
                         "given")
     s.add_argument("--force-device", action="store_true",
                    help="with --resume, continue on a device of another kind than the one "
