@@ -882,6 +882,61 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
 
 
 
+def _adaptive_trial(adaptive: AdaptiveRun, trial: Trial) -> Trial:
+    """The trial at the level its track proposes now, or without a schedule if the track
+    has stopped."""
+    import dataclasses
+
+    c = trial.condition
+    if not trial.practice and adaptive.finished(trial):
+        return dataclasses.replace(trial, condition=dataclasses.replace(c, schedule=None))
+    p = adaptive.propose(trial)
+    variable = adaptive.spec.variable
+    cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
+                               coding_params={**c.coding_params, variable: p.presented})
+    return dataclasses.replace(trial, condition=cond, proposed=p.proposed,
+                               presented=p.presented)
+
+
+def _stopped_records(exp, trial: Trial) -> list[TrialRecord]:
+    """The rows of a trial whose adaptive track had met its stop rule: nothing played."""
+    return [TrialRecord(trial=trial.number, repetition=trial.repetition,
+                        practice=trial.practice, block=trial.block, stimulus=trial.stimulus,
+                        condition=trial.levels, question=q.name, answer=None,
+                        correct_answer=correct_answer(q, trial), correct=None,
+                        status="stopped", started_at=now_iso()) for q in exp.asked()]
+
+
+def _replay_adaptive(adaptive: AdaptiveRun, rows: list[list[str]], cols: list[str],
+                     trials: list[Trial]) -> str | None:
+    """Replay the logged answers through the procedure; what differs first, if anything."""
+    for i, row in enumerate(rows):
+        d = dict(zip(cols, row, strict=False))
+        if d.get("question") != adaptive.question:
+            continue
+        trial = trials[int(d["trial"]) - 1]
+        problem = adaptive.replay(trial, d)
+        if problem:
+            return f"row {i + 1} (trial {trial.number}): {problem}"
+    return None
+
+
+def _last_event_s(path: Path) -> float:
+    """When the last logged device event ended, in seconds on the session's timeline."""
+    end = 0.0
+    try:
+        lines = path.read_text(encoding="utf-8").split("\n")[1:]
+    except OSError:
+        return end
+    for ln in lines:
+        cells = ln.split("\t")
+        try:
+            end = max(end, float(cells[0]) + float(cells[1]))
+        except (ValueError, IndexError):
+            continue
+    return end
+
+
 def _read_record(paths: SessionPaths) -> dict | None:
     """session.json, or its staged copy left by a write cut short; None if neither reads."""
     for f in (paths.session_json, tmp_name(paths.session_json)):
