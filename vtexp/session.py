@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Callable, Protocol
 
 from . import __version__
-from .adaptive.track import AdaptiveRun
+from .adaptive.track import AdaptiveRun, _number
 from .compile import Condition, compile_conditions
 from .design import Trial, trial_list
 from .devices.base import DeviceBase
@@ -722,8 +722,14 @@ def _adaptive_trial(adaptive: AdaptiveRun, trial: Trial) -> Trial:
         return dataclasses.replace(trial, condition=dataclasses.replace(c, schedule=None))
     p = adaptive.propose(trial)
     variable = adaptive.spec.variable
-    cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
-                               coding_params={**c.coding_params, variable: p.presented})
+    if adaptive.spec.sets == "stimulus":
+        cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
+                                   pattern=c.patterns[p.presented],
+                                   stimulus_params={variable: _number(p.presented)})
+    else:
+        cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
+                                   coding_params={**c.coding_params,
+                                                  variable: _number(p.presented)})
     return dataclasses.replace(trial, condition=cond, proposed=p.proposed,
                                presented=p.presented)
 

@@ -50,6 +50,11 @@ def device_levels(variable: str, values: list[float], profile) -> str | None:
         if off:
             return (f"{variable} is played in whole milliseconds (0 or more); {off[0]:g} is not "
                     f"one")
+    if variable.endswith("_pitches"):
+        off = [v for v in values if abs(v - round(v)) > TOL or v < 0]
+        if off:
+            return (f"{variable} is a distance on the array in whole actuator pitches (0 or "
+                    f"more); {off[0]:g} is not one")
     if variable == "level" or variable.endswith("_level"):
         top = profile.limits.max_level
         off = [v for v in values if abs(v - round(v)) > TOL or not 0 <= v <= top]
@@ -107,28 +112,36 @@ def check_adaptive(lx, profile, coding_model) -> None:
     exp = lx.experiment
     spec: AdaptiveSpec = exp.adaptive
     at = ("adaptive",)
-    fields = coding_model.model_fields
-    if spec.variable not in fields:
-        raise lx.error(f"{spec.variable!r} is not a parameter of coding "
-                       f"{exp.coding.protocol!r} (its parameters: {', '.join(fields)})",
-                       at + ("variable",))
-    for fname, f in exp.factors.items():
-        if f.sets == "coding" and any(spec.variable in f.params_of(lv) for lv in f.level_names):
-            raise lx.error(f"factor {fname!r} sets {spec.variable!r}, which the adaptive "
-                           "procedure sets", ("factors", fname))
+    if spec.sets == "stimulus":
+        _check_stimulus_variable(lx, profile)
+    else:
+        fields = coding_model.model_fields
+        if spec.variable not in fields:
+            raise lx.error(f"{spec.variable!r} is not a parameter of coding "
+                           f"{exp.coding.protocol!r} (its parameters: {', '.join(fields)}; a "
+                           "stimulus generator's parameter needs 'sets: stimulus')",
+                           at + ("variable",))
+        for fname, f in exp.factors.items():
+            if f.sets == "coding" and any(spec.variable in f.params_of(lv)
+                                          for lv in f.level_names):
+                raise lx.error(f"factor {fname!r} sets {spec.variable!r}, which the adaptive "
+                               "procedure sets", ("factors", fname))
     values = value_list(spec.values)
     if not values:
         raise lx.error("no levels to play", at + ("values",))
     why = device_levels(spec.variable, values, profile)
     if why:
         raise lx.error(why, at + ("values",))
-    for v in (values[0], values[-1]):
-        try:
-            coding_model.model_validate({**exp.coding.params, spec.variable: _number(v)})
-        except ValidationError as e:
-            msg = e.errors(include_url=False)[0]["msg"]
-            raise lx.error(f"{spec.variable} = {v:g} is not valid for coding "
-                           f"{exp.coding.protocol!r}: {msg}", at + ("values",)) from None
+    if spec.sets == "stimulus":
+        _check_stimulus_levels(lx, profile, values)
+    else:
+        for v in (values[0], values[-1]):
+            try:
+                coding_model.model_validate({**exp.coding.params, spec.variable: _number(v)})
+            except ValidationError as e:
+                msg = e.errors(include_url=False)[0]["msg"]
+                raise lx.error(f"{spec.variable} = {v:g} is not valid for coding "
+                               f"{exp.coding.protocol!r}: {msg}", at + ("values",)) from None
     q = spec.response.question
     asked = {qq.name: qq for qq in exp.asked()}
     if q is not None and q not in asked:
@@ -178,6 +191,68 @@ def check_adaptive(lx, profile, coding_model) -> None:
                 raise lx.error(f"the staircase's {why}",
                                key + ((field,) if not where or field in (overrides or {})
                                       else ()))
+
+
+def _adaptive_stimuli(lx) -> list[str]:
+    """The stimuli the conditions present (those the adaptive level applies to)."""
+    exp = lx.experiment
+    f = exp.stimulus_factor()
+    if f is None:
+        return [next(iter(exp.stimuli))]
+    if exp.design.conditions is not None:
+        return list(dict.fromkeys(c[f] for c in exp.design.conditions))
+    return exp.factors[f].level_names
+
+
+def _check_stimulus_variable(lx, profile) -> None:
+    """``sets: stimulus``: the variable is a parameter of every presented stimulus's
+    generator, and no stimulus fixes it."""
+    from ..stimuli import GENERATORS
+
+    exp = lx.experiment
+    var = exp.adaptive.variable
+    for name in _adaptive_stimuli(lx):
+        st = exp.stimuli[name]
+        if st.generator is None:
+            raise lx.error(f"stimulus {name!r} is not drawn by a generator, so its "
+                           f"{var!r} cannot be set trial by trial", ("adaptive", "sets"))
+        fields = GENERATORS[st.generator][1].model_fields
+        if var not in fields:
+            raise lx.error(f"{var!r} is not a parameter of generator {st.generator!r} "
+                           f"(stimulus {name!r}; its parameters: {', '.join(fields)})",
+                           ("adaptive", "variable"))
+        if var in st.params:
+            raise lx.error(f"stimulus {name!r} sets {var!r}, which the adaptive procedure "
+                           "sets: remove it here", ("stimuli", name, "params", var))
+
+
+def _check_stimulus_levels(lx, profile, values: list[float]) -> None:
+    """Every level is a valid parameter of each stimulus's generator and, for a generator
+    that draws on the array's grid, fits on the device's array."""
+    from ..stimuli import GENERATORS
+
+    exp = lx.experiment
+    var = exp.adaptive.variable
+    for name in _adaptive_stimuli(lx):
+        st = exp.stimuli[name]
+        model = GENERATORS[st.generator][1]
+        base = dict(st.params)
+        if "array_rows" in model.model_fields:
+            base.setdefault("array_rows", profile.rows)
+            base.setdefault("array_cols", profile.cols)
+        for v in values:
+            try:
+                p = model.model_validate({**base, var: _number(v)})
+            except ValidationError as e:
+                msg = e.errors(include_url=False)[0]["msg"]
+                raise lx.error(f"{var} = {v:g} is not valid for generator {st.generator!r} "
+                               f"(stimulus {name!r}): {msg}", ("adaptive", "values")) from None
+            fits = getattr(p, "array_problem", None)
+            why = fits(profile.rows, profile.cols) if fits is not None else None
+            if why:
+                raise lx.error(f"{var} = {v:g} does not fit on {profile.name} (stimulus "
+                               f"{name!r}): {why}; keep the values within the array",
+                               ("adaptive", "values"))
 
 
 def _conditions_per_track(lx) -> int:
