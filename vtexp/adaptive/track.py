@@ -19,7 +19,6 @@ proposals (:meth:`AdaptiveRun.replay`).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -360,9 +359,15 @@ class AdaptiveRun:
             return
         self.track_of(trial).update(presented, self.is_yes(answer, correct_answer))
 
-    def replay(self, trial, row: dict[str, str]) -> str | None:
+    def replay(self, trial, row: dict[str, str], *, exact: bool = True) -> str | None:
         """Check a logged row against what the procedure proposes now, then record it.
-        Returns what differs (None if nothing)."""
+        Returns what differs (None if nothing).
+
+        The log writes ``proposed`` and ``presented`` with every digit (``repr``), so they
+        must read back equal to what the procedure proposes, bit for bit. With
+        ``exact=False`` (sessions logged before that, rounded to 6 decimals) they must
+        equal the proposal rounded to 6 decimals, also exactly.
+        """
         status = row.get("status")
         if not trial.practice and self.finished(trial):
             if status != "stopped":
@@ -377,13 +382,15 @@ class AdaptiveRun:
         except (TypeError, ValueError):
             return (f"proposed/presented are {row.get('proposed')!r}/{row.get('presented')!r}, "
                     "not numbers")
-        # The log keeps 6 decimals (vtexp.log.format_value).
-        if not math.isclose(proposed, round(want.proposed, 6), rel_tol=1e-9, abs_tol=1e-6):
-            return (f"the procedure proposes {want.proposed:.6g} from the answers before it, "
-                    f"the log says {proposed:.6g}")
-        if not math.isclose(presented, want.presented, rel_tol=1e-9, abs_tol=1e-6):
-            return (f"the level presented should be {want.presented:g} (the nearest to "
-                    f"{want.proposed:.6g}), the log says {presented:g}")
+
+        def as_logged(v: float) -> float:
+            return v if exact else round(v, 6)
+        if proposed != as_logged(want.proposed):
+            return (f"the procedure proposes {want.proposed!r} from the answers before it, "
+                    f"the log says {row.get('proposed')}")
+        if presented != as_logged(want.presented):
+            return (f"the level presented should be {want.presented!r} (the nearest to "
+                    f"{want.proposed!r}), the log says {row.get('presented')}")
         if status in ("ok", None):
             na = ("n/a", "")
             answer, right = row.get("answer"), row.get("correct_answer")
@@ -412,3 +419,40 @@ def _make(p, values: np.ndarray, repetitions: int):
         levels=tuple(values), thresholds=tuple(grid(p.thresholds)), slopes=tuple(grid(p.slopes)),
         lapses=tuple(p.lapses), guess=p.guess, function=p.function,
         select_among=p.select_among, max_trials=p.stop.trials))
+
+
+def replay_estimate(procedure, values: list[float], levels: list[float],
+                    yes: list[bool]) -> dict[str, Any]:
+    """The procedure's own estimate after the answers ``yes`` at the ``levels`` presented
+    (in trial order), by feeding them to a fresh procedure as the session did.
+
+    Staircase: the mean of the reversal levels :meth:`Staircase.estimate_levels` picks
+    (``estimate_reversals``, default all but the first to an even count), their SD, and
+    how many there were. QUEST: the posterior mean and SD of the threshold. QUEST+: the
+    posterior mean and SD of threshold, slope and lapse (Watson 2017).
+    """
+    vals = np.asarray(sorted(values), dtype=float)
+    proc = _make(procedure, vals, max(len(levels), 1))
+    for x, y in zip(levels, yes, strict=True):
+        proc.update(float(x), bool(y))
+    nan = float("nan")
+    out: dict[str, Any] = {"procedure": procedure.kind, "n_trials": len(levels),
+                           "threshold": nan, "threshold_sd": nan, "slope": nan,
+                           "slope_sd": nan, "lapse": nan, "lapse_sd": nan,
+                           "n_reversals": None, "reversals_used": None}
+    if isinstance(proc, Staircase):
+        use = proc.estimate_levels()
+        out.update(method="mean of the last reversals", n_reversals=len(proc.reversal_levels),
+                   reversals_used=len(use))
+        if use:
+            out["threshold"] = float(np.mean(use))
+            out["threshold_sd"] = float(np.std(use, ddof=1)) if len(use) > 1 else nan
+    elif isinstance(proc, Quest):
+        out.update(method="posterior mean", threshold=proc.estimate(), threshold_sd=proc.sd(),
+                   slope=procedure.slope, lapse=procedure.lapse)
+    else:
+        m, sd = proc.mean(), proc.sd()
+        out.update(method="posterior mean", threshold=m["threshold"],
+                   threshold_sd=sd["threshold"], slope=m["slope"], slope_sd=sd["slope"],
+                   lapse=m["lapse"], lapse_sd=sd["lapse"])
+    return out
