@@ -60,6 +60,7 @@ def psychometric_fits(trials: pd.DataFrame, adaptive: dict, *, function: str | N
                              bootstrap=bootstrap, name=name)
         row = dict(zip(keys, (str(k) for k in key), strict=True))
         fits.append({**row, "function": function, "n_trials": f.n_trials,
+                     "n_levels": int(g["level"].nunique()),
                      "threshold": f.threshold, "threshold_ci_low": f.threshold_ci[0],
                      "threshold_ci_high": f.threshold_ci[1], "slope": f.slope,
                      "slope_ci_low": f.slope_ci[0], "slope_ci_high": f.slope_ci[1],
@@ -154,7 +155,11 @@ def fit_sentence(row: pd.Series, variable: str, by: list[str]) -> str:
             f"{row['threshold']:.1f} (95 % CI {row['threshold_ci_low']:.1f}–"
             f"{row['threshold_ci_high']:.1f}, parametric bootstrap, {row['n_bootstrap']} "
             f"samples), slope {row['slope']:.2f}, lapse {row['lapse']:.3f}; {row['function']} "
-            f"fitted by maximum likelihood to {row['n_trials']} trials.")
+            f"fitted by maximum likelihood to {row['n_trials']} trials"
+            + (f" at only {row['n_levels']} level{'s' if row['n_levels'] != 1 else ''}: the "
+               "slope and the interval may be poorly determined; compare the procedure's "
+               "estimate"
+               if "n_levels" in row and row["n_levels"] < 3 else "") + ".")
 
 
 def curve(row: pd.Series, levels: np.ndarray) -> np.ndarray:
