@@ -115,8 +115,10 @@ def test_quest_two_point_study_runs_resumes_exactly_and_is_analysed(tmp_path, ca
     assert abs(est["threshold"][0] - 2) < 0.75
     fit = pd.read_csv(out / "two_point_quest" / "psychometric_fit.csv")
     assert len(fit) == 1 and fit["n_trials"][0] == 40
+    assert fit["n_levels"][0] == main_["presented"].nunique()
     md = (out / "two_point_quest" / "report.md").read_text(encoding="utf-8")
     assert "QUEST's posterior mean of the threshold of separation_pitches" in md
+    assert ("may be poorly determined" in md) == (fit["n_levels"][0] < 3)
     assert "threshold of separation_pitches" in capsys.readouterr().out
 
 
