@@ -162,6 +162,8 @@ def test_resume_refuses_a_proposal_changed_in_its_last_digit_and_reads_older_log
     record = json.loads(sj.read_text(encoding="utf-8"))
     del record["adaptive_levels"]
     sj.write_text(json.dumps(record), encoding="utf-8")
+    assert _run(TWO, "-p", "01", "--session", 1, "--resume", "--data", data,
+                "--max-trials", 5) == 0                  # new rows with every digit
     assert _run(TWO, "-p", "01", "--session", 1, "--resume", "--data", data) == 0
     _, done = _beh(data, "two_point_quest", "01")
     assert len(done) == 42 and (done["status"] == "ok").all()
