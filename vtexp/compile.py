@@ -22,7 +22,7 @@ from .errors import InputError, UnsafeStimulus
 from .experiment import LoadedExperiment, load_experiment
 from .model import DeviceProfile, Pattern, Schedule
 from .safety import check_schedule
-from .stimuli import GENERATORS, read_image
+from .stimuli import read_image, render
 
 
 @dataclass
@@ -38,6 +38,10 @@ class Condition:
     adaptive_params: dict[str, Any] = field(default_factory=dict)   # sets: adaptive
     #: with an adaptive procedure: the schedule at each level it may play
     schedules: dict[float, Schedule] | None = field(default=None, repr=False)
+    #: with an adaptive stimulus parameter: the pattern at each level
+    patterns: dict[float, Pattern] | None = field(default=None, repr=False)
+    #: generator parameters that override the stimulus's (an adaptive level, at a trial)
+    stimulus_params: dict[str, Any] = field(default_factory=dict)
 
     @property
     def label(self) -> str:
@@ -74,15 +78,19 @@ def enumerate_conditions(lx: LoadedExperiment) -> list[Condition]:
     return out
 
 
-def stimulus_image(lx: LoadedExperiment, name: str) -> np.ndarray:
+def stimulus_image(lx: LoadedExperiment, name: str, profile: DeviceProfile | None = None,
+                   overrides: dict[str, Any] | None = None) -> np.ndarray:
+    """Stimulus ``name``'s image; a generator's parameters with ``overrides`` (an adaptive
+    level) on top, and the device's grid for a generator that draws on it."""
     spec = lx.experiment.stimuli[name]
     if spec.file is not None:
         try:
             return read_image(lx.resolve(spec.file))
         except InputError as e:
             raise lx.error(e.message + f" ({e.path})", ("stimuli", name, "file")) from None
-    fn, _ = GENERATORS[spec.generator]
-    return fn(**spec.params)
+    profile = profile or DeviceProfile.load(lx.experiment.device)
+    return render(spec.generator, {**spec.params, **(overrides or {})}, profile.rows,
+                  profile.cols)
 
 
 def encoding_params(lx: LoadedExperiment, params: dict[str, Any]) -> dict[str, Any]:
@@ -117,7 +125,7 @@ def compile_conditions(lx: LoadedExperiment, profile: DeviceProfile | None = Non
             _check_camera_condition(lx, c, profile)
             continue
         if c.stimulus not in images:
-            images[c.stimulus] = stimulus_image(lx, c.stimulus)
+            images[c.stimulus] = stimulus_image(lx, c.stimulus, profile)
         key = (c.stimulus, tuple(sorted(encoding_params(lx, c.encoding_params).items())))
         if key not in patterns:
             patterns[key] = encode(lx, images[c.stimulus], profile, c.encoding_params)
@@ -146,17 +154,30 @@ def _compile_levels(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) 
 
     spec = lx.experiment.adaptive
     c.schedules = {}
+    on_stimulus = spec.sets == "stimulus"
+    if on_stimulus:
+        c.patterns = {}
     for v in value_list(spec.values):
-        params = {**c.coding_params, spec.variable: _number(v)}
+        pattern = c.pattern
         try:
-            s = code(lx, c.pattern, profile, params)
+            if on_stimulus:
+                image = stimulus_image(lx, c.stimulus, profile, {spec.variable: _number(v)})
+                pattern = encode(lx, image, profile, c.encoding_params)
+                if not pattern.points:
+                    raise InputError("the stimulus gives an empty pattern")
+                c.patterns[v] = pattern
+                s = code(lx, pattern, profile, c.coding_params)
+            else:
+                s = code(lx, pattern, profile, {**c.coding_params, spec.variable: _number(v)})
             check_schedule(s, profile)
-        except (UnsafeStimulus, InputError) as e:
+        except (UnsafeStimulus, InputError, ValueError) as e:
             raise lx.error(f"condition {c.label} at {spec.variable} = {v:g}: unsafe or "
                            f"impossible on {profile.name}: {getattr(e, 'message', e)}",
                            ("adaptive", "values")) from None
         c.schedules[v] = s
     c.schedule = next(iter(c.schedules.values()))
+    if on_stimulus:
+        c.pattern = next(iter(c.patterns.values()))
 
 
 def _check_camera_condition(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) -> None:

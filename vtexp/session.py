@@ -58,7 +58,7 @@ from pathlib import Path
 from typing import Callable, Protocol
 
 from . import __version__
-from .adaptive.track import AdaptiveRun
+from .adaptive.track import AdaptiveRun, _number
 from .compile import Condition, compile_conditions
 from .design import Trial, trial_list
 from .devices.base import DeviceBase
@@ -562,8 +562,8 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                                    "pulse_width_ms": p.train.pulse_width_ms if p.train else None})
             # A trial's events in one write, in the order of their onsets (BIDS).
             events.append_many(sorted(rows, key=lambda r: r["onset"]))
-            extra = ({"proposed": trial.proposed, "presented": trial.presented}
-                     if adaptive is not None else {})
+            extra = ({"proposed": exact_level(trial.proposed),
+                      "presented": exact_level(trial.presented)} if adaptive is not None else {})
             for rec in recs:                     # one row per question, the trial's last
                 beh.append({**{f: trial.levels[f] for f in factors}, **extra,
                             **rec.model_dump(exclude={"condition"} if camera else
@@ -641,6 +641,9 @@ def _new_record(lx: LoadedExperiment, participant: str, session: int, trials: li
                   "events_sidecar": paths.relative(paths.events_json)},
         "acquisition_start": None,
         "checksums": None, "n_trials_logged": 0, "reason": None, "resumes": [],
+        # proposed/presented written with repr (every digit), so a resume compares them
+        # exactly; sessions without this key wrote them rounded to 6 decimals.
+        **({"adaptive_levels": "exact"} if exp.adaptive is not None else {}),
     }
 
 
@@ -847,7 +850,8 @@ def _reopen(paths: SessionPaths, lx: LoadedExperiment, participant: str, session
                                f"trial {k}; the log cannot be resumed")
     done = len(rows) // per_trial
     if adaptive is not None:
-        problem = _replay_adaptive(adaptive, rows[:done * per_trial], cols, trials)
+        problem = _replay_adaptive(adaptive, rows[:done * per_trial], cols, trials,
+                                   exact=record.get("adaptive_levels") == "exact")
         if problem:
             beh.close()
             refusal = SessionError(f"{paths.beh_tsv}: {problem}. The log does not follow from "
@@ -892,8 +896,14 @@ def _adaptive_trial(adaptive: AdaptiveRun, trial: Trial) -> Trial:
         return dataclasses.replace(trial, condition=dataclasses.replace(c, schedule=None))
     p = adaptive.propose(trial)
     variable = adaptive.spec.variable
-    cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
-                               coding_params={**c.coding_params, variable: p.presented})
+    if adaptive.spec.sets == "stimulus":
+        cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
+                                   pattern=c.patterns[p.presented],
+                                   stimulus_params={variable: _number(p.presented)})
+    else:
+        cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
+                                   coding_params={**c.coding_params,
+                                                  variable: _number(p.presented)})
     return dataclasses.replace(trial, condition=cond, proposed=p.proposed,
                                presented=p.presented)
 
@@ -907,15 +917,21 @@ def _stopped_records(exp, trial: Trial) -> list[TrialRecord]:
                         status="stopped", started_at=now_iso()) for q in exp.asked()]
 
 
+def exact_level(v: float | None) -> str | None:
+    """A level as the log keeps it: every digit (``repr``), so that it reads back equal."""
+    return None if v is None else repr(float(v))
+
+
 def _replay_adaptive(adaptive: AdaptiveRun, rows: list[list[str]], cols: list[str],
-                     trials: list[Trial]) -> str | None:
-    """Replay the logged answers through the procedure; what differs first, if anything."""
+                     trials: list[Trial], exact: bool = True) -> str | None:
+    """Replay the logged answers through the procedure; what differs first, if anything.
+    ``exact``: the log holds every digit; else (older sessions) 6 decimals."""
     for i, row in enumerate(rows):
         d = dict(zip(cols, row, strict=False))
         if d.get("question") != adaptive.question:
             continue
         trial = trials[int(d["trial"]) - 1]
-        problem = adaptive.replay(trial, d)
+        problem = adaptive.replay(trial, d, exact=exact)
         if problem:
             return f"row {i + 1} (trial {trial.number}): {problem}"
     return None

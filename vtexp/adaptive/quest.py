@@ -100,3 +100,9 @@ class Quest:
 
     def estimate(self) -> float:
         return self.threshold("mean")
+
+    def sd(self) -> float:
+        """The posterior's standard deviation of the threshold (on the grid)."""
+        p = self.posterior()
+        m = float(p @ self._alpha)
+        return float(np.sqrt(max(float(p @ (self._alpha - m) ** 2), 0.0)))

@@ -140,6 +140,13 @@ class QuestPlus:
         m = self.params @ self.posterior
         return {"threshold": float(m[0]), "slope": float(m[1]), "lapse": float(m[2])}
 
+    def sd(self) -> dict[str, float]:
+        """The posterior standard deviation of each parameter."""
+        m = self.params @ self.posterior
+        v = ((self.params - m[:, None]) ** 2) @ self.posterior
+        sd = np.sqrt(np.clip(v, 0.0, None))
+        return {"threshold": float(sd[0]), "slope": float(sd[1]), "lapse": float(sd[2])}
+
     def mode(self) -> dict[str, float]:
         i = int(np.argmax(self.posterior))
         return {"threshold": float(self.params[0, i]), "slope": float(self.params[1, i]),

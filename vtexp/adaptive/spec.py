@@ -4,6 +4,7 @@
 
     adaptive:
       variable: soa_ms                 # a parameter of the experiment's coding
+      # sets: stimulus                 # or of the stimuli's generator (separation_pitches)
       values: {min: 10, max: 300, step: 1}     # the levels to play (or a list)
       response: {question: percept, yes_answers: [separate]}   # default: a correct answer
       procedure:
@@ -166,7 +167,12 @@ Procedure = Annotated[StaircaseSpec | QuestSpec | QuestPlusSpec, Discriminator("
 class AdaptiveSpec(Model):
     """Levels chosen trial by trial from the answers so far."""
 
-    variable: str = Field(description="the coding parameter the procedure sets, e.g. soa_ms")
+    variable: str = Field(description="the parameter the procedure sets: of the coding "
+                                      "(soa_ms) or, with sets: stimulus, of the stimuli's "
+                                      "generator (separation_pitches)")
+    sets: Literal["coding", "stimulus"] = Field(
+        "coding", description="what the variable is a parameter of: the coding (default) or "
+                              "the generator of every stimulus")
     values: ValueRange | list[float] = Field(
         description="the levels that may be played: {min, max, step} or a list")
     response: ResponseSpec = Field(default_factory=ResponseSpec)

@@ -164,15 +164,20 @@ class Staircase:
             self._run = 0
             self._step(+1)
 
-    def estimate(self) -> float:
-        """The mean level at the last ``estimate_reversals`` reversals (all but the
-        first, to an even count, by default); the current level if none yet."""
+    def estimate_levels(self) -> list[float]:
+        """The reversal levels the estimate averages: the last ``estimate_reversals``, or by
+        default all but the first, to an even count (one reversal: that one)."""
         rev = self.reversal_levels
         if not rev:
-            return self.level
+            return []
         n = self.rule.estimate_reversals
         if n is None:
             n = len(rev) - 1 if len(rev) > 1 else 1
             n -= n % 2 if n > 1 else 0
-        use = rev[-n:]
-        return sum(use) / len(use)
+        return rev[-n:]
+
+    def estimate(self) -> float:
+        """The mean level at the reversals of :meth:`estimate_levels` (Levitt 1971 §V);
+        the current level if there was no reversal yet."""
+        use = self.estimate_levels()
+        return sum(use) / len(use) if use else self.level

@@ -19,7 +19,6 @@ proposals (:meth:`AdaptiveRun.replay`).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,6 +49,11 @@ def device_levels(variable: str, values: list[float], profile) -> str | None:
         if off:
             return (f"{variable} is played in whole milliseconds (0 or more); {off[0]:g} is not "
                     f"one")
+    if variable.endswith("_pitches"):
+        off = [v for v in values if abs(v - round(v)) > TOL or v < 0]
+        if off:
+            return (f"{variable} is a distance on the array in whole actuator pitches (0 or "
+                    f"more); {off[0]:g} is not one")
     if variable == "level" or variable.endswith("_level"):
         top = profile.limits.max_level
         off = [v for v in values if abs(v - round(v)) > TOL or not 0 <= v <= top]
@@ -107,28 +111,36 @@ def check_adaptive(lx, profile, coding_model) -> None:
     exp = lx.experiment
     spec: AdaptiveSpec = exp.adaptive
     at = ("adaptive",)
-    fields = coding_model.model_fields
-    if spec.variable not in fields:
-        raise lx.error(f"{spec.variable!r} is not a parameter of coding "
-                       f"{exp.coding.protocol!r} (its parameters: {', '.join(fields)})",
-                       at + ("variable",))
-    for fname, f in exp.factors.items():
-        if f.sets == "coding" and any(spec.variable in f.params_of(lv) for lv in f.level_names):
-            raise lx.error(f"factor {fname!r} sets {spec.variable!r}, which the adaptive "
-                           "procedure sets", ("factors", fname))
+    if spec.sets == "stimulus":
+        _check_stimulus_variable(lx, profile)
+    else:
+        fields = coding_model.model_fields
+        if spec.variable not in fields:
+            raise lx.error(f"{spec.variable!r} is not a parameter of coding "
+                           f"{exp.coding.protocol!r} (its parameters: {', '.join(fields)}; a "
+                           "stimulus generator's parameter needs 'sets: stimulus')",
+                           at + ("variable",))
+        for fname, f in exp.factors.items():
+            if f.sets == "coding" and any(spec.variable in f.params_of(lv)
+                                          for lv in f.level_names):
+                raise lx.error(f"factor {fname!r} sets {spec.variable!r}, which the adaptive "
+                               "procedure sets", ("factors", fname))
     values = value_list(spec.values)
     if not values:
         raise lx.error("no levels to play", at + ("values",))
     why = device_levels(spec.variable, values, profile)
     if why:
         raise lx.error(why, at + ("values",))
-    for v in (values[0], values[-1]):
-        try:
-            coding_model.model_validate({**exp.coding.params, spec.variable: _number(v)})
-        except ValidationError as e:
-            msg = e.errors(include_url=False)[0]["msg"]
-            raise lx.error(f"{spec.variable} = {v:g} is not valid for coding "
-                           f"{exp.coding.protocol!r}: {msg}", at + ("values",)) from None
+    if spec.sets == "stimulus":
+        _check_stimulus_levels(lx, profile, values)
+    else:
+        for v in (values[0], values[-1]):
+            try:
+                coding_model.model_validate({**exp.coding.params, spec.variable: _number(v)})
+            except ValidationError as e:
+                msg = e.errors(include_url=False)[0]["msg"]
+                raise lx.error(f"{spec.variable} = {v:g} is not valid for coding "
+                               f"{exp.coding.protocol!r}: {msg}", at + ("values",)) from None
     q = spec.response.question
     asked = {qq.name: qq for qq in exp.asked()}
     if q is not None and q not in asked:
@@ -178,6 +190,68 @@ def check_adaptive(lx, profile, coding_model) -> None:
                 raise lx.error(f"the staircase's {why}",
                                key + ((field,) if not where or field in (overrides or {})
                                       else ()))
+
+
+def _adaptive_stimuli(lx) -> list[str]:
+    """The stimuli the conditions present (those the adaptive level applies to)."""
+    exp = lx.experiment
+    f = exp.stimulus_factor()
+    if f is None:
+        return [next(iter(exp.stimuli))]
+    if exp.design.conditions is not None:
+        return list(dict.fromkeys(c[f] for c in exp.design.conditions))
+    return exp.factors[f].level_names
+
+
+def _check_stimulus_variable(lx, profile) -> None:
+    """``sets: stimulus``: the variable is a parameter of every presented stimulus's
+    generator, and no stimulus fixes it."""
+    from ..stimuli import GENERATORS
+
+    exp = lx.experiment
+    var = exp.adaptive.variable
+    for name in _adaptive_stimuli(lx):
+        st = exp.stimuli[name]
+        if st.generator is None:
+            raise lx.error(f"stimulus {name!r} is not drawn by a generator, so its "
+                           f"{var!r} cannot be set trial by trial", ("adaptive", "sets"))
+        fields = GENERATORS[st.generator][1].model_fields
+        if var not in fields:
+            raise lx.error(f"{var!r} is not a parameter of generator {st.generator!r} "
+                           f"(stimulus {name!r}; its parameters: {', '.join(fields)})",
+                           ("adaptive", "variable"))
+        if var in st.params:
+            raise lx.error(f"stimulus {name!r} sets {var!r}, which the adaptive procedure "
+                           "sets: remove it here", ("stimuli", name, "params", var))
+
+
+def _check_stimulus_levels(lx, profile, values: list[float]) -> None:
+    """Every level is a valid parameter of each stimulus's generator and, for a generator
+    that draws on the array's grid, fits on the device's array."""
+    from ..stimuli import GENERATORS
+
+    exp = lx.experiment
+    var = exp.adaptive.variable
+    for name in _adaptive_stimuli(lx):
+        st = exp.stimuli[name]
+        model = GENERATORS[st.generator][1]
+        base = dict(st.params)
+        if "array_rows" in model.model_fields:
+            base.setdefault("array_rows", profile.rows)
+            base.setdefault("array_cols", profile.cols)
+        for v in values:
+            try:
+                p = model.model_validate({**base, var: _number(v)})
+            except ValidationError as e:
+                msg = e.errors(include_url=False)[0]["msg"]
+                raise lx.error(f"{var} = {v:g} is not valid for generator {st.generator!r} "
+                               f"(stimulus {name!r}): {msg}", ("adaptive", "values")) from None
+            fits = getattr(p, "array_problem", None)
+            why = fits(profile.rows, profile.cols) if fits is not None else None
+            if why:
+                raise lx.error(f"{var} = {v:g} does not fit on {profile.name} (stimulus "
+                               f"{name!r}): {why}; keep the values within the array",
+                               ("adaptive", "values"))
 
 
 def _conditions_per_track(lx) -> int:
@@ -285,9 +359,16 @@ class AdaptiveRun:
             return
         self.track_of(trial).update(presented, self.is_yes(answer, correct_answer))
 
-    def replay(self, trial, row: dict[str, str]) -> str | None:
+    def replay(self, trial, row: dict[str, str], *, exact: bool = True) -> str | None:
         """Check a logged row against what the procedure proposes now, then record it.
-        Returns what differs (None if nothing)."""
+        Returns what differs (None if nothing).
+
+        The log writes ``proposed`` and ``presented`` with every digit (``repr``), so they
+        must read back equal to what the procedure proposes, bit for bit. With
+        ``exact=False`` (sessions begun before that, rounded to 6 decimals) they must
+        equal the proposal or the proposal rounded to 6 decimals, also exactly (rows added
+        by a resume since then keep every digit).
+        """
         status = row.get("status")
         if not trial.practice and self.finished(trial):
             if status != "stopped":
@@ -302,13 +383,16 @@ class AdaptiveRun:
         except (TypeError, ValueError):
             return (f"proposed/presented are {row.get('proposed')!r}/{row.get('presented')!r}, "
                     "not numbers")
-        # The log keeps 6 decimals (vtexp.log.format_value).
-        if not math.isclose(proposed, round(want.proposed, 6), rel_tol=1e-9, abs_tol=1e-6):
-            return (f"the procedure proposes {want.proposed:.6g} from the answers before it, "
-                    f"the log says {proposed:.6g}")
-        if not math.isclose(presented, want.presented, rel_tol=1e-9, abs_tol=1e-6):
-            return (f"the level presented should be {want.presented:g} (the nearest to "
-                    f"{want.proposed:.6g}), the log says {presented:g}")
+
+        def same(logged: float, v: float) -> bool:
+            # An older session resumed since then holds rows of both kinds.
+            return logged == v or (not exact and logged == round(v, 6))
+        if not same(proposed, want.proposed):
+            return (f"the procedure proposes {want.proposed!r} from the answers before it, "
+                    f"the log says {row.get('proposed')}")
+        if not same(presented, want.presented):
+            return (f"the level presented should be {want.presented!r} (the nearest to "
+                    f"{want.proposed!r}), the log says {row.get('presented')}")
         if status in ("ok", None):
             na = ("n/a", "")
             answer, right = row.get("answer"), row.get("correct_answer")
@@ -337,3 +421,40 @@ def _make(p, values: np.ndarray, repetitions: int):
         levels=tuple(values), thresholds=tuple(grid(p.thresholds)), slopes=tuple(grid(p.slopes)),
         lapses=tuple(p.lapses), guess=p.guess, function=p.function,
         select_among=p.select_among, max_trials=p.stop.trials))
+
+
+def replay_estimate(procedure, values: list[float], levels: list[float],
+                    yes: list[bool]) -> dict[str, Any]:
+    """The procedure's own estimate after the answers ``yes`` at the ``levels`` presented
+    (in trial order), by feeding them to a fresh procedure as the session did.
+
+    Staircase: the mean of the reversal levels :meth:`Staircase.estimate_levels` picks
+    (``estimate_reversals``, default all but the first to an even count), their SD, and
+    how many there were. QUEST: the posterior mean and SD of the threshold. QUEST+: the
+    posterior mean and SD of threshold, slope and lapse (Watson 2017).
+    """
+    vals = np.asarray(sorted(values), dtype=float)
+    proc = _make(procedure, vals, max(len(levels), 1))
+    for x, y in zip(levels, yes, strict=True):
+        proc.update(float(x), bool(y))
+    nan = float("nan")
+    out: dict[str, Any] = {"procedure": procedure.kind, "n_trials": len(levels),
+                           "threshold": nan, "threshold_sd": nan, "slope": nan,
+                           "slope_sd": nan, "lapse": nan, "lapse_sd": nan,
+                           "n_reversals": None, "reversals_used": None}
+    if isinstance(proc, Staircase):
+        use = proc.estimate_levels()
+        out.update(method="mean of the last reversals", n_reversals=len(proc.reversal_levels),
+                   reversals_used=len(use))
+        if use:
+            out["threshold"] = float(np.mean(use))
+            out["threshold_sd"] = float(np.std(use, ddof=1)) if len(use) > 1 else nan
+    elif isinstance(proc, Quest):
+        out.update(method="posterior mean", threshold=proc.estimate(), threshold_sd=proc.sd(),
+                   slope=procedure.slope, lapse=procedure.lapse)
+    else:
+        m, sd = proc.mean(), proc.sd()
+        out.update(method="posterior mean", threshold=m["threshold"],
+                   threshold_sd=sd["threshold"], slope=m["slope"], slope_sd=sd["slope"],
+                   lapse=m["lapse"], lapse_sd=sd["lapse"])
+    return out

@@ -490,6 +490,7 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
     if adaptive:
         from .psychometric import fit_sentence, psychometric_fits
         ps = spec.psychometric or PsychometricSpec()
+        done_est: set = set()
         fits, points = psychometric_fits(sub, adaptive, function=ps.function, guess=ps.guess,
                                          lapse=ps.lapse, max_lapse=ps.max_lapse,
                                          bootstrap=ps.bootstrap, by=ps.by)
@@ -499,8 +500,23 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
                                           "per participant (maximum likelihood)")
         res.titles["psychometric_points"] = (f"Answers counted as yes at each level of "
                                              f"{adaptive['variable']} played")
+        from .psychometric import estimate_sentence, procedure_estimates
+        est = procedure_estimates(sub, adaptive, loaded.get("factors") or {})
+        T["procedure_estimates"] = est
+        res.titles["procedure_estimates"] = (
+            f"The procedure's own estimate of {adaptive['variable']} per participant and "
+            "track (recomputed by replaying the log)")
+        many_tracks = est["track"].nunique() > 1 if len(est) else False
         for _, row in fits.iterrows():
             res.sentences.append(fit_sentence(row, adaptive["variable"], ps.by))
+            mine_est = est[est["participant"] == row["participant"]] if len(est) else est
+            for _, e in mine_est.iterrows():
+                if e.name in done_est:
+                    continue
+                done_est.add(e.name)
+                res.sentences.append(estimate_sentence(
+                    e, adaptive["variable"], track=many_tracks,
+                    session=mine_est["session"].nunique() > 1))
     if spec.mixed_model is not None and scored:
         from .glmm import MixedModelWarning, mixed_logit
         mf = spec.mixed_model.factors or factors

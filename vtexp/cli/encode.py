@@ -12,7 +12,8 @@ from ..errors import InputError
 
 # The coding each pipeline's paper uses, unless --coding says otherwise.
 DEFAULT_CODING = {"height-contours": "contour-modes", "edge-trace": "sequential-trace",
-                  "snake-corners": "pulse-trains", "spiral-path": "pulse-trains"}
+                  "snake-corners": "pulse-trains", "spiral-path": "pulse-trains",
+                  "covered-cells": "contour-modes"}
 
 
 def _params(items: list[str] | None, flag: str) -> dict:
@@ -28,15 +29,16 @@ def _params(items: list[str] | None, flag: str) -> dict:
     return out
 
 
-def load_image(spec: str):
-    """IMAGE argument: a file, ``camera[:N]``, or ``GENERATOR:key=value,...``."""
-    from ..stimuli import GENERATORS, read_camera, read_image
+def load_image(spec: str, rows: int | None = None, cols: int | None = None):
+    """IMAGE argument: a file, ``camera[:N]``, or ``GENERATOR:key=value,...`` (a generator
+    that draws on the array's grid gets ``rows`` x ``cols``, the device's)."""
+    from ..stimuli import GENERATORS, read_camera, read_image, render
 
     head, sep, rest = spec.partition(":")
     if spec == "camera" or (head == "camera" and rest.isdigit()):
         return read_camera(int(rest or 0))
     if sep and head in GENERATORS and not Path(spec).exists():
-        fn, model = GENERATORS[head]
+        _, model = GENERATORS[head]
         kv = _params([x for x in rest.split(",") if x], "IMAGE")
         from pydantic import ValidationError
         try:
@@ -45,7 +47,10 @@ def load_image(spec: str):
             err = e.errors(include_url=False)[0]
             raise InputError(f"{'.'.join(map(str, err['loc']))}: {err['msg']}",
                              key=f"IMAGE ({head})") from None
-        return fn(**kv)
+        try:
+            return render(head, kv, rows, cols)
+        except ValueError as e:
+            raise InputError(str(e), key=f"IMAGE ({head})") from None
     return read_image(spec)
 
 
@@ -67,7 +72,7 @@ def cmd_encode(args) -> int:
         raise InputError(f"unknown coding {coding!r}; available: {', '.join(sorted(CODINGS))}",
                          key="--coding")
     profile = DeviceProfile.load(args.device)
-    gray = load_image(args.image)
+    gray = load_image(args.image, profile.rows, profile.cols)
     enc_fn, enc_model = PIPELINES[args.pipeline]
     cod_fn, cod_model = CODINGS[coding]
     try:
@@ -126,7 +131,8 @@ def register(sub) -> None:
                    help="image file, 'camera[:N]', or GENERATOR:key=value,... "
                         "(e.g. surface:surface=ball, shape:shape=square)")
     s.add_argument("--pipeline", required=True,
-                   help="height-contours | edge-trace | snake-corners | spiral-path")
+                   help="height-contours | edge-trace | snake-corners | spiral-path | "
+                        "covered-cells")
     s.add_argument("--device", required=True, help="device profile name or YAML path")
     s.add_argument("--coding", help="coding protocol (default: the pipeline's paper's)")
     s.add_argument("--param", action="append", metavar="KEY=VALUE",

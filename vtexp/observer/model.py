@@ -164,25 +164,27 @@ class ObserverModel:
     def template_report(self, name: str, condition: Condition) -> PlayReport:
         """The answer ``name`` as the device would play it in ``condition``."""
         from ..devices.sim import SimDevice
-        from ..stimuli import GENERATORS
+        from ..stimuli import render
 
         ts = self._template_spec(name, "")
+        # An adaptive stimulus level applies to the experiment's stimuli as templates too.
+        level = repr(sorted(condition.stimulus_params.items()))
         key = (name, repr(sorted(condition.encoding_params.items())),
-               repr(sorted(condition.coding_params.items())))
+               repr(sorted(condition.coding_params.items())), level)
         if key in self._reports:
             return self._reports[key]
         exp = self.lx.experiment
-        image = self._images.get(name)
+        image = self._images.get((name, level))
         if image is None:
             if ts.stimulus is not None:
                 if ts.stimulus not in exp.stimuli:
                     raise self._error(f"template {name!r} names no stimulus of the experiment "
                                       f"({ts.stimulus!r})", ("observer", "templates", name))
-                image = stimulus_image(self.lx, ts.stimulus)
+                image = stimulus_image(self.lx, ts.stimulus, self.profile,
+                                       condition.stimulus_params)
             else:
-                fn, _ = GENERATORS[ts.generator]
-                image = fn(**ts.params)
-            self._images[name] = image
+                image = render(ts.generator, ts.params, self.profile.rows, self.profile.cols)
+            self._images[(name, level)] = image
         pattern = encode(self.lx, image, self.profile, condition.encoding_params)
         if not pattern.points:
             raise self._error(f"template {name!r} gives an empty pattern on {self.profile.name}",

@@ -16,6 +16,7 @@ import numpy as np
 from .._cv2 import cv2
 from ..errors import InputError
 from .letters import LETTERS, LetterParams, render_letter
+from .points import TwoPointParams, render_two_point
 from .shapes import SHAPES, ShapeParams, render_shape
 from .spiral import WhirlpoolParams, render_whirlpool
 from .surfaces import SURFACES, SurfaceParams, render_surface
@@ -25,7 +26,21 @@ GENERATORS = {
     "letter": (render_letter, LetterParams),
     "surface": (render_surface, SurfaceParams),
     "whirlpool": (render_whirlpool, WhirlpoolParams),
+    "two_point": (render_two_point, TwoPointParams),
 }
+
+
+def render(generator: str, params: dict, rows: int | None = None,
+           cols: int | None = None) -> np.ndarray:
+    """``generator``'s image with ``params``; a generator that draws on the array's grid
+    (``array_rows``/``array_cols``, e.g. ``two_point``) gets the device's ``rows`` and
+    ``cols`` unless the params give them."""
+    fn, model = GENERATORS[generator]
+    params = dict(params)
+    if rows is not None and "array_rows" in model.model_fields:
+        params.setdefault("array_rows", rows)
+        params.setdefault("array_cols", cols)
+    return fn(**params)
 
 
 def read_image(path: str | Path) -> np.ndarray:
@@ -71,6 +86,6 @@ def read_camera(index: int = 0, *, warmup_frames: int = 3) -> np.ndarray:
     return cv.cvtColor(frame, cv.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
 
 
-__all__ = ["GENERATORS", "read_camera", "LETTERS", "SHAPES", "SURFACES", "LetterParams", "ShapeParams",
+__all__ = ["GENERATORS", "TwoPointParams", "render", "render_two_point", "read_camera", "LETTERS", "SHAPES", "SURFACES", "LetterParams", "ShapeParams",
            "SurfaceParams", "read_image", "render_letter",
            "render_shape", "render_surface"]
