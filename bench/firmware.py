@@ -8,8 +8,9 @@ output change against the schedule, on the chip's own clock, to the cycle.
 1. Onset error of N pulses (default 300) at a fixed SOA (default 200 ms, a 60 s run)
    on the vest (1 Mbaud):
    - firmware: two uploaded schedules of N/2 pulses on one device timeline (the second
-     triggered for the device time where the first's timeline continues; the device
-     holds 256 pulses); error = latch edge - (start + scheduled onset);
+     triggered for the device time of the first's timeline's next SOA at least 400 ms
+     after its last pulse, time to upload it: the device holds one schedule of up to
+     256 pulses); error = latch edge - (start + scheduled onset);
    - the Python emulator (vtexp device emulate, its own process): the device-reported
      onsets of one schedule of N pulses (it has no pins);
    - baseline: a naive host loop against the same firmware: write a SET_FRAME,
@@ -41,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import signal
@@ -105,6 +107,7 @@ def latch_edges(tr: fwtrace.Trace, n: int) -> np.ndarray:
 def firmware_onsets(n: int, soa_ms: float) -> tuple[dict, dict]:
     half = n // 2
     parts = [sweep(half, soa_ms), sweep(n - half, soa_ms, first=half)]
+    second_step = half + max(1, math.ceil(400 / soa_ms))
     with AvrSimulator("vest_6x8") as sim:
         with open_device(f"serial:{sim.port}{SIM_LINK}", VEST) as dev:
             link = dev._link
@@ -116,8 +119,9 @@ def firmware_onsets(n: int, soa_ms: float) -> tuple[dict, dict]:
                 per = (dev._payload_budget() - 5) // wire.UploadChunk.pulse_size(1)
                 for j in range(0, len(wp), per):
                     link.expect(wire.UploadChunk(pid, j, 1, tuple(wp[j:j + per])), wire.Ack)
-                # the second part continues the first's timeline on the device clock
-                at = 0 if k == 0 else starts[0] + round(half * soa_ms * 1000)
+                # the second part continues the first's timeline on the device clock, at
+                # the first SOA step at least 400 ms after its last pulse (the upload's time)
+                at = 0 if k == 0 else starts[0] + round(second_step * soa_ms * 1000)
                 ack = link.expect(wire.Trigger(pid, at), wire.Ack)
                 starts.append(ack.t_us)
                 planned += [ack.t_us + round(p.onset_ms * 1000) for p in pulses]
@@ -137,7 +141,7 @@ def firmware_onsets(n: int, soa_ms: float) -> tuple[dict, dict]:
         k = np.argmin(np.abs(edges - c))
         report_vs_edge.append(abs(edges[k] - c) / CYC_US)
     s = stats(err, t_s)
-    s["second_start_exact"] = starts[1] - starts[0] == round(half * soa_ms * 1000)
+    s["second_start_exact"] = starts[1] - starts[0] == round(second_step * soa_ms * 1000)
     s["sync_vs_latch_max_us"] = max(report_vs_edge)
     return s, {"stack_used": tr.stack_used, "max_lag_ms": tr.end.get("max_lag_ns", 0) / 1e6}
 
