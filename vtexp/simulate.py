@@ -383,8 +383,8 @@ def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, se
 
 def smallest_n(path: Path | str, target: float, studies: int, *, alpha: float = 0.05,
                seed: int = 0, n_max: int = 200, workers: int | None = None,
-               params_file=None, overrides: dict | None = None, on_step=None
-               ) -> tuple[pd.DataFrame, dict[int, PowerResult]]:
+               params_file=None, overrides: dict | None = None, on_step=None,
+               executor=None) -> tuple[pd.DataFrame, dict[int, PowerResult]]:
     """For each effect, the smallest N whose simulated power reaches ``target``.
 
     N doubles from 4 until every effect reaches the target (or ``n_max``), then
@@ -397,7 +397,7 @@ def smallest_n(path: Path | str, target: float, studies: int, *, alpha: float = 
         if n not in results:
             results[n] = run_power(path, n, studies, alpha=alpha, seed=seed, workers=workers,
                                    params_file=params_file, overrides=overrides,
-                                   first_study=n * 1_000_000)
+                                   first_study=n * 1_000_000, executor=executor)
             if on_step:
                 on_step(n, results[n])
         return results[n].table.set_index("effect")["power"]
