@@ -242,6 +242,7 @@ class ExperimentSource:
 
 #: Prepared experiments in this process (a worker's), by ExperimentSource.key.
 _SETUPS: dict[str, Setup] = {}
+_KEEP = 8
 _SETUP: Setup | None = None
 
 
@@ -268,16 +269,24 @@ def _work(args) -> tuple[pd.DataFrame, pd.DataFrame, int]:
     return effect_tests(_SETUP, trials), condition_means(_SETUP, trials), len(studies)
 
 
+def prepared(source: ExperimentSource) -> Setup:
+    """``source.setup()``, kept in this process for the chunks and points that follow."""
+    setup = _SETUPS.get(source.key)
+    if setup is None:
+        while len(_SETUPS) >= _KEEP:        # a sweep's points come one after another
+            _SETUPS.pop(next(iter(_SETUPS)))
+        setup = _SETUPS[source.key] = source.setup()
+    return setup
+
+
 def work_chunk(source: ExperimentSource, seed: int, studies: list[int], n: int
                ) -> tuple[pd.DataFrame, pd.DataFrame, int]:
     """One chunk of studies on any worker: the experiment from its text (kept for the
     next chunk), BLAS on one thread (the worker's other cores run other chunks)."""
     global _LIMIT
-    setup = _SETUPS.get(source.key)
-    if setup is None:
-        if _LIMIT is None:
-            _LIMIT = _one_blas_thread()
-        setup = _SETUPS[source.key] = source.setup()
+    if _LIMIT is None:
+        _LIMIT = _one_blas_thread()
+    setup = prepared(source)
     trials = simulate_studies(setup, seed, studies, n)
     return effect_tests(setup, trials), condition_means(setup, trials), len(studies)
 
@@ -329,7 +338,7 @@ def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, se
     args = [(seed, c, n) for c in chunks]
     # Load here first: a wrong file or parameter is one clear error, not a broken pool.
     if source is not None:
-        setup = source.setup()
+        setup = prepared(source)
     else:
         setup = Setup.load(path, params_file=params_file, overrides=overrides)
     limit = None

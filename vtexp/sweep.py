@@ -31,7 +31,7 @@ from pydantic import ConfigDict, Field, ValidationError
 
 from .errors import InputError
 from .model import Model
-from .simulate import ExperimentSource, PowerResult, run_power
+from .simulate import ExperimentSource, PowerResult, prepared, run_power
 from .yamlio import format_validation_error, load_yaml
 
 
@@ -122,7 +122,7 @@ def sweep_points(experiment: Path | str, spec: SweepSpec, sweep_doc, *, params_f
                                                             allow_unicode=True)
         source = ExperimentSource.of(experiment, params_file=params_file, text=text)
         try:
-            source.setup()                  # wrong values: one message before any study
+            prepared(source)                # wrong values: one message before any study
         except InputError as e:
             where = ", ".join(f"{k} = {v}" for k, v in setting.items())
             raise InputError(f"with {where}: {e.message}", path=str(sweep_doc.path),

@@ -38,6 +38,9 @@ def register(sub) -> None:
                         "default) or dask://HOST:PORT (a Dask scheduler and its workers, "
                         "each with vtexp and the 'cluster' extra; they receive the "
                         "experiment's text, not a path)")
+    s.add_argument("--connect-timeout", type=float, default=5.0, metavar="S",
+                   help="with --executor dask://: give up reaching the scheduler after S "
+                        "seconds (default 5)")
     s.add_argument("--sweep", metavar="FILE",
                    help="a sweep file: lists of participants per study and of experiment "
                         "values (design.repetitions, coding.params.duration_ms, ...); prints "
@@ -120,7 +123,7 @@ def cmd_simulate(args) -> int:
     client = None
     if args.executor not in ("local", ""):
         from ..cluster import connect, threads
-        client = connect(args.executor)         # unreachable: one message, nothing has run
+        client = connect(args.executor, timeout_s=args.connect_timeout)   # before any study
     try:
         if client is not None:
             workers, executor = threads(client), client.get_executor()
