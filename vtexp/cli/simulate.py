@@ -126,7 +126,7 @@ def cmd_simulate(args) -> int:
         client = connect(args.executor, timeout_s=args.connect_timeout)   # before any study
     try:
         if client is not None:
-            workers, executor = threads(client), client.get_executor()
+            workers, executor = threads(client), client.get_executor(pure=False)
             where = f"{workers} worker threads of {client.scheduler.address}"
         else:
             workers, executor = args.workers or os.cpu_count() or 1, None
