@@ -139,6 +139,8 @@ class LslMarkers(MarkerSink):
 
     # -- hooks ------------------------------------------------------------------------------
     def _push(self, host_ms: float, marker: dict) -> None:
+        if self.outlet is None:
+            return
         try:
             self.outlet.push_sample([json.dumps(marker, separators=(",", ":"), default=str)],
                                     host_ms / 1000.0 + self.offset_s)
@@ -167,6 +169,4 @@ class LslMarkers(MarkerSink):
         self._push(time.monotonic() * 1000.0, {"event": "session_end", "status": status})
 
     def close(self) -> None:
-        outlet, self.outlet = self.outlet, None
-        if outlet is not None:
-            del outlet
+        self.outlet = None      # liblsl closes the outlet when its last reference goes
