@@ -446,7 +446,7 @@ class SerialDevice(DeviceBase):
         self._current = st
         self._check_stop()                  # stopped during the upload: nothing is played
         if self.clock.age_ms() > self.clock.window_ms / 2:
-            link.ping()                     # a fresh sample of the device's clock
+            link.expect(wire.Heartbeat(), Ack)      # a fresh sample of the device's clock
         start_us = link.expect(Trigger(pid, 0), Ack).t_us
         st.triggered = True
         self._play_started(start_us / 1000.0, self.clock.to_host_ms(start_us / 1000.0))
