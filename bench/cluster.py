@@ -8,9 +8,11 @@ and on a two-worker Dask LocalCluster (loopback), with the power tables compared
   127.0.0.1, its client's ``get_executor()`` passed to ``run_power`` (what
   ``vtexp simulate --executor dask://HOST:PORT`` does): each chunk of studies carries
   the experiment's text and SHA-256. The cluster's start is timed apart; its workers'
-  first chunk includes preparing the experiment (as a real cluster's would), and a
-  second run on the same workers shows the rate once they have it (a sweep's later
-  Ns). Every local run prepares the experiment in each process it starts.
+  first chunk includes preparing the experiment (as a real cluster's would).
+
+Each is run twice: cold (every process prepares the experiment: compiles its
+conditions and renders the model participant's answer templates, several seconds
+for this study) and warm (the same processes again, as a sweep's later Ns find them).
 
 Every run must give the same power table as the baseline (asserted). Prints a table,
 writes JSON to bench/results/cluster.json; ratios are studies per second against the
@@ -39,16 +41,25 @@ EXP = ROOT / "experiments" / "duration_interval_grid.yaml"
 def main() -> int:
     studies = int(sys.argv[1]) if len(sys.argv) > 1 else 400
     n = int(sys.argv[2]) if len(sys.argv) > 2 else 10
+    from concurrent.futures import ProcessPoolExecutor
+
     from distributed import LocalCluster
 
     from vtexp.cluster import connect, threads
+    from vtexp.simulate import ExperimentSource
+
+    src = ExperimentSource.of(EXP)
+
+    def twice(workers, executor=None):
+        """A cold run (every process prepares the experiment) and a warm one after it."""
+        return [run_power(EXP, n, studies, workers=workers, executor=executor, source=src)
+                for _ in range(2)]
 
     rows = []
-    base = run_power(EXP, n, studies, workers=1)
-    rows.append(("1 process (baseline)", base.seconds, None))
-    two = run_power(EXP, n, studies, workers=2)
-    assert two.table.equals(base.table), "2 processes: another power table"
-    rows.append(("2 local processes", two.seconds, None))
+    base = twice(1)
+    rows.append(("1 process (baseline)", base, None))
+    with ProcessPoolExecutor(2) as pool:
+        rows.append(("2 local processes", twice(2, pool), None))
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -58,32 +69,36 @@ def main() -> int:
         client = connect(lc.scheduler_address)
         start_s = time.perf_counter() - t0
         try:
-            ex = client.get_executor(pure=False)
-            dk = run_power(EXP, n, studies, workers=threads(client), executor=ex)
-            warm = run_power(EXP, n, studies, workers=threads(client), executor=ex)
+            rows.append(("Dask LocalCluster, 2 workers",
+                         twice(threads(client), client.get_executor(pure=False)), start_s))
         finally:
             client.close()
     finally:
         lc.close()
-    assert dk.table.equals(base.table), "Dask: another power table"
-    assert warm.table.equals(base.table), "Dask, warm: another power table"
-    rows.append(("Dask LocalCluster, 2 workers", dk.seconds, start_s))
-    rows.append(("  the same again (workers warm)", warm.seconds, None))
+    for name, runs, _ in rows:
+        for r in runs:
+            assert r.table.equals(base[0].table), f"{name}: another power table"
 
     print(f"{studies} studies of {n} model participants, {EXP.name}, "
           f"{os.cpu_count()} cores; the same power table in every run")
-    print(f"{'run':<32} {'seconds':>8} {'studies/s':>10} {'ratio':>7}  note")
+    print("cold: the first run, each process prepares the experiment; warm: the same again")
+    print(f"{'run':<30} {'cold s':>7} {'warm s':>7} {'studies/s':>10} {'warm':>6} "
+          f"{'ratio':>6} {'warm':>6}")
     result = {"studies": studies, "participants": n, "experiment": EXP.name,
               "cores": os.cpu_count(), "python": platform.python_version(),
               "machine": platform.machine(), "runs": []}
-    for name, sec, start in rows:
-        rate = studies / sec
-        ratio = rate / (studies / base.seconds)
-        note = f"cluster start {start:.1f} s (not counted)" if start is not None else ""
-        print(f"{name:<32} {sec:8.2f} {rate:10.1f} {ratio:6.2f}x  {note}")
-        result["runs"].append({"run": name, "seconds": round(sec, 3),
-                               "studies_per_s": round(rate, 2), "ratio": round(ratio, 3),
+    rate0 = [studies / r.seconds for r in base]
+    for name, (cold, warm), start in rows:
+        rate = [studies / cold.seconds, studies / warm.seconds]
+        ratio = [rate[0] / rate0[0], rate[1] / rate0[1]]
+        print(f"{name:<30} {cold.seconds:7.2f} {warm.seconds:7.2f} {rate[0]:10.1f} "
+              f"{rate[1]:6.1f} {ratio[0]:5.2f}x {ratio[1]:5.2f}x")
+        result["runs"].append({"run": name, "cold_s": round(cold.seconds, 3),
+                               "warm_s": round(warm.seconds, 3),
+                               "studies_per_s": [round(x, 2) for x in rate],
+                               "ratio": [round(x, 3) for x in ratio],
                                "cluster_start_s": None if start is None else round(start, 2)})
+    print(f"the cluster started in {rows[-1][2]:.1f} s (not counted)")
     out = ROOT / "bench" / "results" / "cluster.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
