@@ -119,9 +119,9 @@ def open_markers(spec: str, *, experiment: str, participant: str, session: int,
         from .trigger import ParallelTrigger, SerialTrigger
 
         if not target:
-            raise InputError(f"{spec!r}: give the {'port' if kind == 'serial' else 'address'}"
-                             f", e.g. {'serial:/dev/ttyUSB0' if kind == 'serial' else 'parallel:/dev/parport0'}",
-                             key="--markers")
+            example = "serial:/dev/ttyUSB0" if kind == "serial" else "parallel:/dev/parport0"
+            what = "port" if kind == "serial" else "address"
+            raise InputError(f"{spec!r}: give the {what}, e.g. {example}", key="--markers")
         cls = SerialTrigger if kind == "serial" else ParallelTrigger
         return cls.open(target, opts, warn=warn)
     raise InputError(f"unknown marker output {spec!r}: lsl, serial:PORT[,baud=N,reset_ms=N] "
