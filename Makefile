@@ -14,11 +14,12 @@ $(VENV)/.core: pyproject.toml
 	touch $@
 
 # Tests also install the participant window (PsychoPy, the `gui` extra), the BIDS
-# validator (in `test`) and DuckDB (the `pool` extra). PsychoPy
+# validator (in `test`), DuckDB (the `pool` extra), the LSL marker stream (`lsl`) and
+# Dask (`cluster`). PsychoPy
 # pulls in opencv-python, which shares the cv2 module with the contrib build that
 # vtexp needs: remove it and put the contrib build back, then check.
 $(VENV)/.test: $(VENV)/.core
-	$(BIN)/python -m pip install --quiet -e '.[gui,test,pool]'
+	$(BIN)/python -m pip install --quiet -e '.[gui,test,pool,lsl,cluster]'
 	$(BIN)/python -m pip uninstall --quiet -y opencv-python opencv-python-headless
 	$(BIN)/python -m pip install --quiet --force-reinstall --no-deps opencv-contrib-python-headless
 	$(BIN)/python -c "from vtexp._cv2 import cv2; cv2()"

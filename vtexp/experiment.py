@@ -29,7 +29,7 @@ from .analysis.spec import AnalysisSpec, check_factor_references
 from .errors import InputError
 from .model import Model
 from .observer.spec import ObserverSpec
-from .yamlio import KeyPath, LoadedYaml, format_validation_error, load_yaml
+from .yamlio import KeyPath, LoadedYaml, format_validation_error, load_yaml, load_yaml_text
 
 NAME = r"^[a-z][a-z0-9_]*$"
 LABEL = r"^[A-Za-z0-9][A-Za-z0-9_.\-/ ]*$"
@@ -577,7 +577,17 @@ def load_experiment(path: str | Path) -> LoadedExperiment:
     pipelines, codings and their parameters). Encoding the stimuli and checking
     their safety is :func:`vtexp.compile.load_and_compile`'s.
     """
-    loaded = load_yaml(path)
+    return _loaded(load_yaml(path))
+
+
+def load_experiment_text(text: str, path: str | Path) -> LoadedExperiment:
+    """:func:`load_experiment` of an experiment's ``text`` (a copy sent to another
+    machine); ``path`` names it in messages, and files it refers to (stimulus images,
+    coding files by path) are looked for beside it."""
+    return _loaded(load_yaml_text(text, str(path)))
+
+
+def _loaded(loaded: LoadedYaml) -> LoadedExperiment:
     if not isinstance(loaded.data, dict):
         raise InputError("expected a mapping of keys (name:, title:, ...) at the top level",
                          path=loaded.path, line=1)

@@ -298,6 +298,12 @@ class PlayReport(Model):
     duration_ms: float
     pulses: list[PlayedPulse]
     completed: bool = True
+    started_at_host_ms: float | None = Field(
+        None, description="the play's start on this computer's time.monotonic clock (ms), "
+                          "mapped from the device's clock; None if the device cannot say")
+    host_clock_error_ms: float | None = Field(
+        None, description="bound on the error of started_at_host_ms (half the round trip "
+                          "of the exchange it was mapped from)")
 
 
 class DeviceInfo(Model):

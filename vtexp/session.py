@@ -294,7 +294,13 @@ DeviceFaultHandler = Callable[[DeviceError, Trial], str]
 
 
 class TrialSink(Protocol):
-    """Receives each trial's record after it is safely on disk (progress, preview...)."""
+    """Receives each trial's record after it is safely on disk (progress, preview...).
+
+    A sink may also hear the session as it happens, through methods it has of these
+    names (marker outputs do: :class:`vtexp.markers.MarkerSink`): ``session_started``,
+    ``trial_started``, ``play_started``, ``answered``, ``trial_logged``,
+    ``session_ended``.
+    """
 
     def __call__(self, record: TrialRecord, trial: Trial, total: int) -> None: ...
 
@@ -531,7 +537,17 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
     result = SessionResult(paths, "running", seed=seed)
     status, reason = "failed", None
     clock = _Timeline(record, paths, _last_event_s(paths.events_tsv) if resume else 0.0)
+
+    def notify(hook: str, *args) -> None:
+        for sink in sinks:
+            call_hook(sink, hook, *args)
+
+    was_listening = getattr(device, "on_play_started", None)
+    device.on_play_started = lambda device_ms, host_ms: notify("play_started", device_ms,
+                                                                host_ms)
     try:
+        notify("session_started", {"experiment": exp.name, "participant": participant,
+                                   "session": session, "resume": resume, "trials_done": done})
         call_hook(responder, "resume_at", done)
         call_hook(responder, "instructions", exp.instructions.strip() or exp.asked()[0].prompt)
         todo = trials[done:] if max_trials is None else trials[done:done + max_trials]
@@ -543,7 +559,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                 recs, plays = _stopped_records(exp, trial), []      # its track had stopped
             else:
                 recs, plays = _run_trial_pausing(exp, trial, device, responder,
-                                                 on_device_error, camera)
+                                                 on_device_error, camera, notify)
             if plays:
                 clock.anchor(wall, plays[0].started_at_ms)
             # The device events first, the trial's row last: the row is what makes a
@@ -577,6 +593,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
             for rec in recs:
                 for sink in sinks:
                     sink(rec, trial, len(trials))
+            notify("trial_logged", trial, recs, plays)
             _wait(device, exp.design.iti_ms)
             _maybe_break(exp, trial, trials, responder)
         call_hook(responder, "finish", "Thank you. The session is over.")
@@ -591,10 +608,15 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
         status, reason = "failed", f"{type(e).__name__}: {e}"
         raise
     finally:
+        device.on_play_started = was_listening
         try:
             device.all_off()
         finally:
             try:
+                try:
+                    notify("session_ended", status)
+                except Exception:
+                    pass            # a sink's trouble must not cost the session its record
                 beh.close()
                 events.close()
                 record.update(status=status, reason=reason, ended_at=now_iso(),
@@ -1006,15 +1028,20 @@ def _device_hint(recorded: str | None) -> str:
         else "serial:PORT"
 
 
+def _no_notify(hook: str, *args) -> None:
+    pass
+
+
 def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Responder,
                        on_device_error: DeviceFaultHandler | None,
-                       camera: _CameraTrials | None = None
+                       camera: _CameraTrials | None = None, notify=_no_notify
                        ) -> tuple[list[TrialRecord], list[PlayReport]]:
     """A trial, with the experimenter's choice when the device fails during it."""
     while True:
         started = now_iso()
+        notify("trial_started", trial, time.monotonic() * 1000.0)
         try:
-            return _run_trial(exp, trial, device, responder, camera)
+            return _run_trial(exp, trial, device, responder, camera, notify)
         except DeviceError as e:
             error = e
             # The participant sees (and hears) that the session is paused, not "feel it".
@@ -1047,7 +1074,7 @@ def _run_trial_pausing(exp, trial: Trial, device: DeviceBase, responder: Respond
 
 
 def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder,
-               camera: _CameraTrials | None = None
+               camera: _CameraTrials | None = None, notify=_no_notify
                ) -> tuple[list[TrialRecord], list[PlayReport]]:
     """Play the stimulus, then ask each question in turn: one record per question."""
     started = now_iso()
@@ -1085,7 +1112,9 @@ def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder,
             call_hook(responder, "stimulus_played", trial, plays[-1])
             return plays[-1]
 
+        asked = time.monotonic() * 1000.0
         resp = responder.ask(q, trial, replay if q.replays > 0 else None)
+        notify("answered", trial, q, resp, asked, time.monotonic() * 1000.0)
         right = correct_answer(q, trial)
         records.append(TrialRecord(
             trial=trial.number, repetition=trial.repetition, practice=trial.practice,

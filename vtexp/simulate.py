@@ -9,13 +9,21 @@ participant gets the trial list a real session would give them
 same decision), into a table with the columns of :func:`vtexp.analysis.load.load_sessions`.
 The experiment's declared ANOVAs (``rm_anova_batch``, every study at once) and
 Friedman tests run on each study; the power of an effect is the share of studies
-with p < alpha, with a Wilson 95 % interval. Studies are spread over every core.
+with p < alpha, with a Wilson 95 % interval. Studies are spread over every core, or
+over a Dask cluster (``executor=``, ``vtexp.cluster``): a worker receives the
+experiment's text and SHA-256 (:class:`ExperimentSource`), never a path, checks the
+hash, and keeps the prepared experiment for the tasks that follow. Every random
+number is keyed by (seed, study, participant), so the table is the same whichever
+worker ran which study.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import os
+import tempfile
 import warnings
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -32,7 +40,7 @@ from .compile import Condition, compile_conditions
 from .design import trial_list
 from .devices.sim import SimDevice
 from .errors import InputError
-from .experiment import LoadedExperiment, load_experiment
+from .experiment import LoadedExperiment, load_experiment, load_experiment_text
 from .model import PlayReport
 from .observer.model import ObserverModel, question_columns
 from .responders.base import correct_answer
@@ -49,8 +57,9 @@ class Setup:
     spec: AnalysisSpec
 
     @classmethod
-    def load(cls, path: Path | str, *, params_file=None, overrides: dict | None = None) -> Setup:
-        lx = load_experiment(path)
+    def load(cls, path: Path | str, *, params_file=None, overrides: dict | None = None,
+             lx: LoadedExperiment | None = None) -> Setup:
+        lx = lx or load_experiment(path)
         model = ObserverModel.for_experiment(lx, params_file=params_file, overrides=overrides)
         conditions = compile_conditions(lx, model.profile)
         played = []
@@ -174,6 +183,66 @@ def condition_means(setup: Setup, trials: pd.DataFrame) -> pd.DataFrame:
 
 
 # --------------------------------------------------------------------------- workers
+@dataclass(frozen=True)
+class ExperimentSource:
+    """What a worker needs to rebuild an experiment for simulation, as text.
+
+    ``path`` only names the file in messages (and is where files it refers to are
+    looked for); the experiment is ``text``, checked against ``sha256`` where it is
+    loaded. ``observer_text`` is the observer parameter file's text (None: the
+    shipped defaults), ``overrides`` a JSON text of parameter overrides.
+    """
+
+    text: str
+    sha256: str
+    path: str
+    observer_text: str | None = None
+    observer_path: str | None = None
+    overrides: str = "{}"
+
+    @classmethod
+    def of(cls, path: Path | str, *, params_file=None, overrides: dict | None = None,
+           text: str | None = None) -> ExperimentSource:
+        if text is None:
+            try:
+                text = Path(path).read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as e:
+                raise InputError(f"cannot read: {e}", path=str(path)) from None
+        obs = None
+        if params_file is not None:
+            try:
+                obs = Path(params_file).read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as e:
+                raise InputError(f"cannot read: {e}", path=str(params_file)) from None
+        return cls(text, hashlib.sha256(text.encode("utf-8")).hexdigest(), str(path), obs,
+                   None if params_file is None else str(params_file),
+                   json.dumps(overrides or {}, sort_keys=True))
+
+    @property
+    def key(self) -> str:
+        return hashlib.sha256("\0".join((self.sha256, self.observer_text or "",
+                                          self.overrides)).encode("utf-8")).hexdigest()
+
+    def setup(self) -> Setup:
+        """Load it (the text checked against its SHA-256 first)."""
+        got = hashlib.sha256(self.text.encode("utf-8")).hexdigest()
+        if got != self.sha256:
+            raise InputError(f"the experiment text received has SHA-256 {got[:12]}..., not "
+                             f"{self.sha256[:12]}... as sent: it was damaged on the way",
+                             path=self.path)
+        lx = load_experiment_text(self.text, self.path)
+        overrides = json.loads(self.overrides)
+        if self.observer_text is None:
+            return Setup.load(self.path, lx=lx, overrides=overrides)
+        with tempfile.TemporaryDirectory(prefix="vtexp-observer-") as d:
+            f = Path(d) / Path(self.observer_path or "observer.yaml").name
+            f.write_text(self.observer_text, encoding="utf-8")
+            return Setup.load(self.path, lx=lx, params_file=f, overrides=overrides)
+
+
+#: Prepared experiments in this process (a worker's), by ExperimentSource.key.
+_SETUPS: dict[str, Setup] = {}
+_KEEP = 8
 _SETUP: Setup | None = None
 
 
@@ -200,6 +269,28 @@ def _work(args) -> tuple[pd.DataFrame, pd.DataFrame, int]:
     return effect_tests(_SETUP, trials), condition_means(_SETUP, trials), len(studies)
 
 
+def prepared(source: ExperimentSource) -> Setup:
+    """``source.setup()``, kept in this process for the chunks and points that follow."""
+    setup = _SETUPS.get(source.key)
+    if setup is None:
+        while len(_SETUPS) >= _KEEP:        # a sweep's points come one after another
+            _SETUPS.pop(next(iter(_SETUPS)))
+        setup = _SETUPS[source.key] = source.setup()
+    return setup
+
+
+def work_chunk(source: ExperimentSource, seed: int, studies: list[int], n: int
+               ) -> tuple[pd.DataFrame, pd.DataFrame, int]:
+    """One chunk of studies on any worker: the experiment from its text (kept for the
+    next chunk), BLAS on one thread (the worker's other cores run other chunks)."""
+    global _LIMIT
+    if _LIMIT is None:
+        _LIMIT = _one_blas_thread()
+    setup = prepared(source)
+    trials = simulate_studies(setup, seed, studies, n)
+    return effect_tests(setup, trials), condition_means(setup, trials), len(studies)
+
+
 def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
     """Wilson score interval of a proportion k / n (95 % by default)."""
     if n == 0:
@@ -223,8 +314,15 @@ class PowerResult:
 
 def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, seed: int = 0,
               workers: int | None = None, params_file=None, overrides: dict | None = None,
-              progress=None, first_study: int = 0) -> PowerResult:
-    """Simulate ``studies`` studies of ``n`` participants and test each (see module doc)."""
+              progress=None, first_study: int = 0, executor=None,
+              source: ExperimentSource | None = None) -> PowerResult:
+    """Simulate ``studies`` studies of ``n`` participants and test each (see module doc).
+
+    ``executor``: a ``concurrent.futures.Executor`` to run the chunks on (a Dask
+    cluster's, ``vtexp.cluster.connect(...).get_executor()``) instead of a process per
+    core; ``workers`` is then how many run at once there (the chunk size follows it).
+    ``source``: the experiment as text (:class:`ExperimentSource`), instead of ``path``.
+    """
     import time
 
     if n < 2:
@@ -239,14 +337,25 @@ def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, se
     tests, means = [], []
     args = [(seed, c, n) for c in chunks]
     # Load here first: a wrong file or parameter is one clear error, not a broken pool.
-    setup = Setup.load(path, params_file=params_file, overrides=overrides)
+    if source is not None:
+        setup = prepared(source)
+    else:
+        setup = Setup.load(path, params_file=params_file, overrides=overrides)
     limit = None
-    if workers == 1:
+    if executor is not None:
+        if source is None:
+            source = ExperimentSource.of(path, params_file=params_file, overrides=overrides)
+        results = executor.map(work_chunk, *zip(*((source, *a) for a in args)))
+        pool = None
+    elif workers == 1:
         global _SETUP
         _SETUP = setup
         limit = _one_blas_thread()
         results = map(_work, args)
         pool = None
+    elif source is not None:
+        pool = ProcessPoolExecutor(workers)
+        results = pool.map(work_chunk, *zip(*((source, *a) for a in args)))
     else:
         pool = ProcessPoolExecutor(workers, initializer=_init,
                                    initargs=(str(path), params_file, overrides))
@@ -283,8 +392,8 @@ def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, se
 
 def smallest_n(path: Path | str, target: float, studies: int, *, alpha: float = 0.05,
                seed: int = 0, n_max: int = 200, workers: int | None = None,
-               params_file=None, overrides: dict | None = None, on_step=None
-               ) -> tuple[pd.DataFrame, dict[int, PowerResult]]:
+               params_file=None, overrides: dict | None = None, on_step=None,
+               executor=None) -> tuple[pd.DataFrame, dict[int, PowerResult]]:
     """For each effect, the smallest N whose simulated power reaches ``target``.
 
     N doubles from 4 until every effect reaches the target (or ``n_max``), then
@@ -297,7 +406,7 @@ def smallest_n(path: Path | str, target: float, studies: int, *, alpha: float = 
         if n not in results:
             results[n] = run_power(path, n, studies, alpha=alpha, seed=seed, workers=workers,
                                    params_file=params_file, overrides=overrides,
-                                   first_study=n * 1_000_000)
+                                   first_study=n * 1_000_000, executor=executor)
             if on_step:
                 on_step(n, results[n])
         return results[n].table.set_index("effect")["power"]

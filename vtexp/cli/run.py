@@ -95,7 +95,7 @@ def resume_command(file, participant: str, session: int, device: str | None,
 
 def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet, conds=None,
              resume=False, *, check_device=False, test_pulse=False, max_trials=None,
-             force_device=False, participant_info=None):
+             force_device=False, participant_info=None, markers=()):
     from ..devices import open_device
     from ..model import DeviceProfile
     from ..responders import make_responder
@@ -110,7 +110,8 @@ def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet,
         if check_device:
             _check_device(device, profile, test_pulse)
         return run_session(lx, participant, session, device, responder, data, conditions=conds,
-                           sinks=(_Progress(quiet, lx.experiment.design.iti_ms / 1000.0),),
+                           sinks=(_Progress(quiet, lx.experiment.design.iti_ms / 1000.0),
+                                  *markers),
                            command=sys.argv,
                            on_device_error=ask_experimenter if sys.stdin.isatty() else None,
                            resume=resume, max_trials=max_trials, device_spec=device_spec,
@@ -149,6 +150,27 @@ def _check_device(device, profile, test_pulse: bool) -> None:
         else:
             out("  no test pulse played")
     out("device check passed; no actuator is on")
+
+
+def open_marker_outputs(specs, lx, participant: str, session: int) -> list:
+    """The ``--markers`` outputs, opened before the device: one that cannot be opened
+    ends the run in one message, before any trial (those already open are closed)."""
+    from ..markers import open_markers
+
+    opened = []
+    try:
+        for spec in specs or ():
+            m = open_markers(spec, experiment=lx.experiment.name, participant=participant,
+                             session=session, warn=lambda msg: print(f"vtexp: warning: {msg}",
+                                                                     file=sys.stderr, flush=True))
+            opened.append(m)
+            out(f"markers: {m.description}"
+                + (f" (source_id {m.source_id})" if getattr(m, "source_id", None) else ""))
+    except BaseException:
+        for m in opened:
+            m.close()
+        raise
+    return opened
 
 
 def _report_dead(args, lx) -> None:
@@ -280,10 +302,18 @@ def cmd_run(args) -> int:
                                                 rec.get("device") or device,
                                                 rec.get("responder") or responder, args.data))
     args.after_error = hint
-    res = _run_one(lx, participant, session, device, responder,
-                   args.data, args.quiet, conds, resume=resume, check_device=True,
-                   test_pulse=args.test_pulse, max_trials=args.max_trials,
-                   force_device=args.force_device, participant_info=info)
+    markers = open_marker_outputs(args.markers, lx, participant, session)
+    try:
+        res = _run_one(lx, participant, session, device, responder,
+                       args.data, args.quiet, conds, resume=resume, check_device=True,
+                       test_pulse=args.test_pulse, max_trials=args.max_trials,
+                       force_device=args.force_device, participant_info=info,
+                       markers=markers)
+    finally:
+        for m in markers:
+            m.close()
+            if m.lost:
+                out(f"markers: {m.lost} could not be sent to the {m.description}")
     acc = [r.correct for r in res.records if r.correct is not None]
     n = len({r.trial for r in res.records})
     out(f"session {res.status}: {n} trials logged in {res.paths.dir}"
@@ -339,6 +369,13 @@ def register(sub) -> None:
                         "the session ran on (e.g. sim after serial)")
     s.add_argument("--max-trials", type=int, metavar="N",
                    help="stop after N trials (status aborted, resumable with --resume)")
+    s.add_argument("--markers", action="append", metavar="SPEC",
+                   help="send event markers to a recorder (EEG, physiology), opened before "
+                        "the first trial: lsl (a Lab Streaming Layer stream of type Markers, "
+                        "the 'lsl' extra; pulses stamped with their device-reported onsets), "
+                        "serial:PORT[,baud=N,reset_ms=N] (a trigger box: one byte code per "
+                        "event) or parallel:ADDRESS (/dev/parport0, 0x378). May be given "
+                        "more than once. See docs/markers.md")
     s.add_argument("--test-pulse", action="store_true",
                    help="after the device check, offer one low pulse on actuator (row 0, "
                         "col 0), played only if the experimenter answers y")

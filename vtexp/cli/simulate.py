@@ -33,6 +33,21 @@ def register(sub) -> None:
                    help="observer parameters (default protocols/observers/default.yaml)")
     s.add_argument("--workers", type=int, default=0,
                    help="processes (default: one per core)")
+    s.add_argument("--executor", default="local", metavar="SPEC",
+                   help="where the studies run: local (processes on this computer, the "
+                        "default) or dask://HOST:PORT (a Dask scheduler and its workers, "
+                        "each with vtexp and the 'cluster' extra; they receive the "
+                        "experiment's text, not a path)")
+    s.add_argument("--connect-timeout", type=float, default=5.0, metavar="S",
+                   help="with --executor dask://: give up reaching the scheduler after S "
+                        "seconds (default 5)")
+    s.add_argument("--sweep", metavar="FILE",
+                   help="a sweep file: lists of participants per study and of experiment "
+                        "values (design.repetitions, coding.params.duration_ms, ...); prints "
+                        "the power of every effect at every combination (the power surface)")
+    s.add_argument("--out", metavar="FILE",
+                   help="with --sweep: also write the surface, one row per point, N and "
+                        "effect, as CSV (.csv) or JSON (.json)")
     s.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     s.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     s.set_defaults(func=cmd_simulate)
@@ -86,27 +101,60 @@ def _print_means(res, factors: list[str], out=print) -> None:
 
 def cmd_simulate(args) -> int:
     from ..compile import load_and_compile
-    from ..simulate import run_power, smallest_n
 
     if not 0 < args.alpha < 1:
         raise InputError("alpha must be between 0 and 1", key="--alpha")
     if args.target_power is not None and not 0 < args.target_power < 1:
         raise InputError("the target power must be between 0 and 1", key="--target-power")
+    if args.out and not args.sweep:
+        raise InputError("writes a sweep's surface; give --sweep FILE (or --json for one N)",
+                         key="--out")
+    if args.out and Path(args.out).suffix.lower() not in (".csv", ".json"):
+        raise InputError(f"{args.out!r}: name a .csv or .json file", key="--out")
+    if args.sweep and args.target_power is not None:
+        raise InputError("--target-power searches one design; with --sweep, list the Ns "
+                         "under participants:", key="--target-power")
     lx, _ = load_and_compile(args.file)        # clear errors before any worker starts
     if lx.experiment.adaptive is not None:
         raise InputError("vtexp simulate plays the fixed levels of a design; this experiment "
                          "chooses its levels adaptively. Run sessions with --responder "
                          "scripted:psychometric:threshold=T (or see bench/adaptive.py for the "
                          "procedures' convergence)", path=str(args.file), key="adaptive")
+    sweep = None
+    if args.sweep:
+        from ..sweep import load_sweep, sweep_points
+        spec, doc = load_sweep(args.sweep)
+        sweep = (spec, sweep_points(args.file, spec, doc, params_file=args.observer))
+    client = None
+    if args.executor not in ("local", ""):
+        from ..cluster import connect, threads
+        client = connect(args.executor, timeout_s=args.connect_timeout)   # before any study
+    try:
+        if client is not None:
+            workers, executor = threads(client), client.get_executor(pure=False)
+            where = f"{workers} worker threads of {client.scheduler.address}"
+        else:
+            workers, executor = args.workers or os.cpu_count() or 1, None
+            where = f"{workers} processes"
+        if sweep is not None:
+            return _sweep(args, lx, *sweep, workers, executor, where)
+        return _one_n(args, lx, workers, executor, where)
+    finally:
+        if client is not None:
+            client.close()
+
+
+def _one_n(args, lx, workers, executor, where) -> int:
+    from ..simulate import run_power, smallest_n
+
     factors = list(lx.experiment.factors)
-    workers = args.workers or os.cpu_count() or 1
     print(f"{lx.experiment.name}: {args.studies} studies of {args.participants} model "
-          f"participants, {workers} processes", file=sys.stderr)
+          f"participants, {where}", file=sys.stderr)
     advance, stop = _progress(args.studies, args.quiet, f"N = {args.participants}")
     try:
         res = run_power(args.file, args.participants, args.studies, alpha=args.alpha,
                         seed=args.seed, workers=workers, params_file=args.observer,
-                        progress=advance)
+                        progress=advance, executor=executor)
     finally:
         stop()
     _print_power(res)
@@ -116,7 +164,7 @@ def cmd_simulate(args) -> int:
            "experiment_sha256": lx.sha256, "environment": environment(),
            "participants": res.n, "studies": res.studies, "alpha": res.alpha,
            "seed": args.seed, "observer": args.observer or "protocols/observers/default.yaml",
-           "seconds": round(res.seconds, 2), "workers": workers,
+           "seconds": round(res.seconds, 2), "workers": workers, "executor": args.executor,
            "power": res.table.to_dict(orient="records"),
            "predicted": res.means.astype(object).where(res.means.notna(), None)
            .to_dict(orient="records")}
@@ -130,7 +178,7 @@ def cmd_simulate(args) -> int:
                       + f"  ({r.seconds:.1f} s)", file=sys.stderr)
         table, _ = smallest_n(args.file, args.target_power, args.studies, alpha=args.alpha,
                               seed=args.seed, n_max=args.max_participants, workers=workers,
-                              params_file=args.observer, on_step=step)
+                              params_file=args.observer, on_step=step, executor=executor)
         print(f"\nSmallest N for power >= {args.target_power}:")
         for _, r in table.iterrows():
             found = r["smallest_n"] is not None and r["smallest_n"] == r["smallest_n"]
@@ -144,4 +192,51 @@ def cmd_simulate(args) -> int:
         Path(args.json).write_text(json.dumps(doc, indent=2, default=str) + "\n",
                                    encoding="utf-8")
         print(f"\nwrote {args.json}", file=sys.stderr)
+    return 0
+
+
+def _sweep(args, lx, spec, points, workers, executor, where) -> int:
+    """The power surface of a sweep (``vtexp.sweep``)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from ..sweep import run_sweep, surface_lines
+
+    studies = spec.studies or args.studies
+    keys = list(spec.vary)
+    total = len(points) * len(spec.participants)
+    print(f"{lx.experiment.name}: sweep of {len(points)} design"
+          f"{'' if len(points) == 1 else 's'} x {len(spec.participants)} N = {total} points, "
+          f"{studies} studies each, {where}", file=sys.stderr)
+    pool = None
+    if executor is None and workers > 1:
+        pool = executor = ProcessPoolExecutor(workers)     # one pool for every point
+    advance, stop = _progress(total * studies, args.quiet, "sweep")
+
+    def point(p, n, res):
+        advance(studies)
+
+    try:
+        table = run_sweep(points, spec.participants, studies, alpha=args.alpha,
+                          seed=args.seed, workers=workers, executor=executor, on_point=point)
+    finally:
+        stop()
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    print(f"\nPower surface ({studies} studies per point, alpha = {args.alpha}):")
+    for line in surface_lines(table, keys):
+        print(f"  {line}")
+    if args.out:
+        out = Path(args.out)
+        if out.suffix.lower() == ".csv":
+            table.to_csv(out, index=False)
+        else:
+            doc = {"experiment": lx.experiment.name, "experiment_sha256": lx.sha256,
+                   "sweep": str(args.sweep), "studies": studies, "alpha": args.alpha,
+                   "seed": args.seed, "executor": args.executor,
+                   "points": [{"setting": p.setting, "sha256": p.source.sha256}
+                              for p in points],
+                   "power": table.astype(object).where(table.notna(), None)
+                   .to_dict(orient="records")}
+            out.write_text(json.dumps(doc, indent=2, default=str) + "\n", encoding="utf-8")
+        print(f"\nwrote {out}", file=sys.stderr)
     return 0

@@ -105,6 +105,10 @@ class DeviceBase:
         self._stream_state: dict[Actuator, Drive] = {}
         self._streaming = False
         self._alive_at = 0.0
+        #: Called as a play starts, with its start on the device's clock (ms) and on the
+        #: host's ``time.monotonic`` clock (ms, or None): a trigger box sends its code
+        #: then. Backends call :meth:`_play_started`.
+        self.on_play_started: Callable[[float, float | None], None] | None = None
 
     # -- public API -------------------------------------------------------------------------
     def open(self) -> DeviceInfo:
@@ -138,6 +142,10 @@ class DeviceBase:
             self._should_stop = None
         self._mark_off(schedule)
         return report
+
+    def _play_started(self, device_ms: float, host_ms: float | None) -> None:
+        if self.on_play_started is not None:
+            self.on_play_started(device_ms, host_ms)
 
     def _mark_off(self, schedule: Schedule) -> None:
         # Stamped when play returns, which is no earlier than the last pulse ended:

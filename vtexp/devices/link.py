@@ -117,6 +117,9 @@ class Link:
         # checking in (a live stream), so the device's watchdog should end the session.
         self.heartbeat_gate: Callable[[], bool] | None = None
         self.heartbeat_s: float | None = None
+        # Called with (sent_ms, answered_ms, device_ms) for each heartbeat answered: the
+        # ACK carries the device's clock read in between (``devices.clock``).
+        self.clock_sample: Callable[[float, float, float], None] | None = None
         self._reader = wire.FrameReader()
         self._cond = threading.Condition()
         self._tx_lock = threading.Lock()
@@ -212,6 +215,7 @@ class Link:
                 self._pending, self._reply, self._resend = seq, None, False
             attempt = 0
             while True:
+                sent = time.monotonic()
                 self._write(frame, msg)
                 deadline = time.monotonic() + timeout
                 with self._cond:
@@ -227,6 +231,10 @@ class Link:
                 if self._closing.is_set():
                     raise DeviceError(f"the link to {self.name} was closed during a request")
                 if reply is not None:
+                    if self.clock_sample is not None and isinstance(msg, wire.Heartbeat) \
+                            and isinstance(reply, wire.Ack):
+                        self.clock_sample(sent * 1000.0, time.monotonic() * 1000.0,
+                                          reply.t_us / 1000.0)
                     return reply
                 if attempt >= retries:
                     raise DeviceError(

@@ -47,6 +47,7 @@ from ..model import (
 )
 from . import wire
 from .base import STOP_POLL_S, DeviceBase
+from .clock import DeviceClock
 from .link import DeviceLost, DeviceRefused, Link
 from .wire import (
     Ack,
@@ -215,6 +216,8 @@ class SerialDevice(DeviceBase):
         self._drive = wire.DRIVE_KINDS[profile.drive.kind]
         self._off = wire.OFF[self._drive]
         self._outputs: list[Setting] = [self._off] * (profile.rows * profile.cols)
+        #: The device's clock on this computer's, from every heartbeat's ACK.
+        self.clock = DeviceClock()
 
     # -- open / close -----------------------------------------------------------------------
     def _open(self) -> DeviceInfo:
@@ -240,6 +243,8 @@ class SerialDevice(DeviceBase):
                     retries=self.retries, on_event=self._on_event, trace=self.trace)
         self._link = link
         self._outputs = [self._off] * (self.profile.rows * self.profile.cols)
+        self.clock.reset()                  # a device opened again may have restarted its clock
+        link.clock_sample = self.clock.add
         link.start()
         try:
             self.hello = hello = self._handshake(link)
@@ -440,8 +445,11 @@ class SerialDevice(DeviceBase):
         st = _PlayState(pid, len(wp), [None] * len(wp))
         self._current = st
         self._check_stop()                  # stopped during the upload: nothing is played
+        if self.clock.age_ms() > self.clock.window_ms / 2:
+            link.expect(wire.Heartbeat(), Ack)      # a fresh sample of the device's clock
         start_us = link.expect(Trigger(pid, 0), Ack).t_us
         st.triggered = True
+        self._play_started(start_us / 1000.0, self.clock.to_host_ms(start_us / 1000.0))
         self._wait_done(link, st, schedule.duration_ms)
         if st.done is not None and st.done.reason != DoneReason.FINISHED:
             self._current = None
@@ -457,8 +465,16 @@ class SerialDevice(DeviceBase):
                               onset_ms=(t - start_us) / 1000.0, duration_ms=p.duration_ms,
                               level=p.level, train=p.train)
                   for p, t in zip(pulses, st.onsets)]
+        return self._report(start_us, schedule, report)
+
+    def _report(self, start_us: int, schedule: Schedule, pulses: list[PlayedPulse]
+                ) -> PlayReport:
+        """The report of a play, its start also on the host's clock (``devices.clock``)."""
+        off = self.clock.offset_ms()
         return PlayReport(device=self.profile.name, started_at_ms=start_us / 1000.0,
-                          duration_ms=schedule.duration_ms, pulses=report)
+                          duration_ms=schedule.duration_ms, pulses=pulses,
+                          started_at_host_ms=None if off is None else start_us / 1000.0 - off[0],
+                          host_clock_error_ms=None if off is None else off[1])
 
     def _refusal(self, nak: wire.Nak, pulses: list[Pulse], wp: list[WirePulse],
                  first: int) -> str:
@@ -609,6 +625,8 @@ class SerialDevice(DeviceBase):
                 # The play's start on the device clock: the instant that came least late
                 # says it best (each is sent at its time or later, never earlier)
                 implied = applied - round(t_ms * 1000)
+                if first_t_us is None:
+                    self._play_started(implied / 1000.0, self.clock.to_host_ms(implied / 1000.0))
                 first_t_us = implied if first_t_us is None else min(first_t_us, implied)
                 for i in starting:
                     onsets[i] = applied
@@ -619,8 +637,7 @@ class SerialDevice(DeviceBase):
                               onset_ms=(t - start_us) / 1000.0, duration_ms=p.duration_ms,
                               level=p.level, train=p.train)
                   for p, t in zip(pulses, onsets)]
-        return PlayReport(device=self.profile.name, started_at_ms=start_us / 1000.0,
-                          duration_ms=schedule.duration_ms, pulses=report)
+        return self._report(start_us, schedule, report)
 
     # -- live stream ------------------------------------------------------------------------
     def stream_watchdog_ms(self) -> float | None:

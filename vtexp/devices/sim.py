@@ -61,26 +61,31 @@ class SimDevice(DeviceBase):
 
     def _play(self, schedule: Schedule) -> PlayReport:
         start = self.clock_ms
+        # The virtual clock has no fixed relation to real time: a play starts, on the
+        # host's clock, when it is asked for.
+        host_start = time.monotonic() * 1000.0
+        self._play_started(start, host_start)
         played = [PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
                               onset_ms=p.onset_ms, duration_ms=p.duration_ms,
                               level=p.level, train=p.train)
                   for p in schedule.sorted()]
         report = PlayReport(device=self.profile.name, started_at_ms=start,
-                            duration_ms=schedule.duration_ms, pulses=played)
+                            duration_ms=schedule.duration_ms, pulses=played,
+                            started_at_host_ms=host_start, host_clock_error_ms=0.0)
         if self.realtime and schedule.duration_ms > 0:
-            self._drive_realtime(schedule)
+            self._drive_realtime(schedule, host_start / 1000.0)
         self.clock_ms = start + schedule.duration_ms
         self.history.append(SimEvent(start, "play", report))
         self.plays.append(report)
         self.state[:] = 0.0     # every pulse has ended by the end of the schedule
         return report
 
-    def _drive_realtime(self, schedule: Schedule) -> None:
-        """Take the schedule's real time, ``state`` following its pulses."""
+    def _drive_realtime(self, schedule: Schedule, t0: float) -> None:
+        """Take the schedule's real time from ``t0`` (``time.monotonic``), ``state``
+        following its pulses."""
         pulses = schedule.sorted()
         instants = sorted({p.onset_ms for p in pulses} | {p.offset_ms for p in pulses}
                           | {schedule.duration_ms})
-        t0 = time.monotonic()
         try:
             for t in instants:
                 self._sleep(t0 + t / 1000.0 - time.monotonic())
