@@ -61,8 +61,10 @@ venv-test: system-packages $(VENV)/.test
 demo: $(VENV)/.core
 	$(BIN)/vtexp demo
 
+# Two test processes (pytest-xdist), each test file whole in one of them: most of the
+# suite waits on real time (windows, speech, devices played at their pace).
 test: system-packages $(VENV)/.test
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist loadfile
 
 clean:
 	rm -rf $(VENV) .pytest_cache test-output

@@ -76,7 +76,10 @@ def xvfb():
     if exe is None:
         pytest.fail("Xvfb is not installed: apt-get install xvfb libgl1-mesa-dri "
                     "(make test installs them)")
-    n = next(n for n in range(90, 200)
+    # pytest-xdist's workers (gw0, gw1, ...) look in ranges of their own: no two pick one
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    first = 90 + 40 * int(worker[2:] or 0)
+    n = next(n for n in range(first, first + 40)
              if not Path(f"/tmp/.X{n}-lock").exists()
              and not Path(f"/tmp/.X11-unix/X{n}").exists())
     proc = subprocess.Popen([exe, f":{n}", "-screen", "0", "1920x1200x24", "-nolisten", "tcp"],
