@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -68,21 +69,18 @@ def minimal_yaml() -> str:
     return MINIMAL
 
 
-@pytest.fixture(scope="session")
-def xvfb():
-    """A virtual X server on a free display number, for the whole test session (one for
-    every window test: pyglet stays connected to the first display it opens)."""
+@contextlib.contextmanager
+def start_xvfb(first: int, size: str):
+    """A virtual X server on the first free display number from ``first`` (40 tried),
+    ``size`` as ``WxHxDEPTH``; yields ``":N"`` and stops it afterwards."""
     exe = shutil.which("Xvfb")
     if exe is None:
         pytest.fail("Xvfb is not installed: apt-get install xvfb libgl1-mesa-dri "
                     "(make test installs them)")
-    # pytest-xdist's workers (gw0, gw1, ...) look in ranges of their own: no two pick one
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
-    first = 90 + 40 * int(worker[2:] or 0)
     n = next(n for n in range(first, first + 40)
              if not Path(f"/tmp/.X{n}-lock").exists()
              and not Path(f"/tmp/.X11-unix/X{n}").exists())
-    proc = subprocess.Popen([exe, f":{n}", "-screen", "0", "1920x1200x24", "-nolisten", "tcp"],
+    proc = subprocess.Popen([exe, f":{n}", "-screen", "0", size, "-nolisten", "tcp"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 20
     while not Path(f"/tmp/.X11-unix/X{n}").exists():
@@ -90,16 +88,32 @@ def xvfb():
             proc.kill()
             pytest.fail(f"Xvfb :{n} did not start: {proc.stderr.read().decode()[-500:]}")
         time.sleep(0.05)
-    old = os.environ.get("DISPLAY")
-    os.environ["DISPLAY"] = f":{n}"
-    yield f":{n}"
-    if "psychopy.visual" in sys.modules:      # a failed test may leave its window open
-        from psychopy.visual.window import openWindows
-        for ref in list(openWindows):
-            if ref() is not None:
-                ref().close()
-    proc.terminate()
-    proc.wait(10)
+    try:
+        yield f":{n}"
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def worker_number() -> int:
+    """This pytest-xdist worker's number (gw0, gw1, ...; 0 without xdist)."""
+    return int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:] or 0)
+
+
+@pytest.fixture(scope="session")
+def xvfb():
+    """A virtual X server on a free display number, for the whole test session (one for
+    every window test: pyglet stays connected to the first display it opens)."""
+    # pytest-xdist's workers look in ranges of their own: no two pick one display
+    with start_xvfb(90 + 40 * worker_number(), "1920x1200x24") as disp:
+        old = os.environ.get("DISPLAY")
+        os.environ["DISPLAY"] = disp
+        yield disp
+        if "psychopy.visual" in sys.modules:      # a failed test may leave its window open
+            from psychopy.visual.window import openWindows
+            for ref in list(openWindows):
+                if ref() is not None:
+                    ref().close()
     if old is None:
         os.environ.pop("DISPLAY", None)
     else:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, start_xvfb, worker_number
 
 if importlib.util.find_spec("psychopy") is None:
     pytest.skip("PsychoPy is not installed (the 'gui' extra; make test installs it)",
@@ -29,26 +29,11 @@ SHOTS = ROOT / "test-output" / "live"
 
 @pytest.fixture(scope="module")
 def display():
-    exe = shutil.which("Xvfb")
-    if exe is None:
-        pytest.fail("Xvfb is not installed: apt-get install xvfb libgl1-mesa-dri "
-                    "(make test installs them)")
-    n = next(n for n in range(200, 300)
-             if not Path(f"/tmp/.X{n}-lock").exists()
-             and not Path(f"/tmp/.X11-unix/X{n}").exists())
-    proc = subprocess.Popen([exe, f":{n}", "-screen", "0", "1400x900x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 20
-    while not Path(f"/tmp/.X11-unix/X{n}").exists():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            proc.kill()
-            pytest.fail(f"Xvfb :{n} did not start: {proc.stderr.read().decode()[-500:]}")
-        time.sleep(0.05)
-    shutil.rmtree(SHOTS, ignore_errors=True)
-    SHOTS.mkdir(parents=True)
-    yield f":{n}"
-    proc.terminate()
-    proc.wait(10)
+    # a display range above the window tests' (tests/conftest.py)
+    with start_xvfb(200 + 40 * worker_number(), "1400x900x24") as disp:
+        shutil.rmtree(SHOTS, ignore_errors=True)
+        SHOTS.mkdir(parents=True)
+        yield disp
 
 
 @pytest.fixture(scope="module")
