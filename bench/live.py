@@ -6,13 +6,17 @@ MJPG): an object crossing the frame and back while it bobs and turns
 (``vtexp.live.synthetic``: a rectangle for the edge trace and the snake, seed 000's
 shaded ball for the height contours). The video plays at its frame rate, as a camera
 delivers frames, to each device named by ``--device`` (default: ``sim``, and
-``emulator``: the emulated firmware in a process of its own, ``vtexp device emulate``,
-over a pty with pyserial), in three ways:
+``emulator``: vtexp's model of the firmware in a process of its own, ``vtexp device
+emulate``, over a pty with pyserial; ``avr``: the reference firmware's ATmega2560 build
+in simavr the same way, ``vtexp device emulate --firmware avr``; ``host``: the reference
+firmware built for this computer), in three ways:
 
 - ``vtexp live``: the loop of ``vtexp.live`` — newest frame only (dropped, never queued),
-  each frame's cycle played in time (``cycle``: the trace, apparent movement; the height
-  contours are held by their static coding) or held (``hold``), only changed outputs
-  sent, the profile's limits held across frames;
+  each frame's cycle played in time (``cycle``: the trace, apparent movement, a new
+  frame's cycle going on from where it changed, ``vtexp live``'s default;
+  ``cycle/place``: from the same place, ``--follow place``; the height contours are held
+  by their static coding) or held (``hold``), only changed outputs sent, the profile's
+  limits held across frames;
 - ``naive``: capture -> encode -> the whole array in one full frame -> ``sleep(1/30)``,
   frames taken in order from a camera driver's queue of 4 buffers (new frames dropped
   when it is full, as V4L2 does when the program does not keep up);
@@ -26,12 +30,14 @@ every frame of the video, the distance (actuator pitches) between the centroid o
 points the array was playing then and the object's true centroid mapped onto the array,
 mean and p95 (so a loop that lags is charged for it); bytes sent per second (serial
 devices); how late the loop was for the safety guard's deadlines (max); the guard's
-degradations. Ratios compare ``vtexp live`` with the naive loop in the same run.
+degradations, and the changes it left out (``out``: what they switch on is over the
+power budget, so they have no onset to measure; not in the latencies). Ratios compare
+``vtexp live`` with the naive loop in the same run.
 
 Goals (issue 12): >= 30 fps sustained, p95 latency <= 40 ms for every pipeline on this
 2-core machine, tracking error <= 0.5 pitch.
 
-Another device (e.g. the AVR firmware of issue 11) is one argument:
+Another device is one argument: ``--device avr``, or a board,
 ``--device serial:/dev/ttyACM0=vest_6x8`` (``=PROFILE``: run only the pipelines of that
 profile). Prints a table, writes ``bench/results/live.json``.
 
@@ -58,6 +64,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vtexp.devices import open_device  # noqa: E402
+from vtexp.devices.base import stream_watchdog_limit_ms  # noqa: E402
+from vtexp.model import DeviceProfile  # noqa: E402
 from vtexp.errors import DeviceError  # noqa: E402
 from vtexp.encoding.mapping import ImageToArray  # noqa: E402
 from vtexp.live.encoder import LiveEncoder, LiveSetup  # noqa: E402
@@ -66,11 +74,12 @@ from vtexp.live.program import held  # noqa: E402
 from vtexp.live.sources import VideoSource  # noqa: E402
 from vtexp.live.synthetic import write_video  # noqa: E402
 
-PIPELINES = [  # (pipeline, video object, object size, plays)
-    ("edge-trace", "rectangle", 0.5, ("cycle", "hold")),
-    ("snake-corners", "rectangle", 0.5, ("cycle", "hold")),
+PIPELINES = [  # (pipeline, video object, object size, plays: "play" or "play/follow")
+    ("edge-trace", "rectangle", 0.5, ("cycle", "cycle/place", "hold")),
+    ("snake-corners", "rectangle", 0.5, ("cycle", "cycle/place", "hold")),
     ("height-contours", "ball", 0.6, ("cycle",)),
 ]
+FIRMWARES = {"emulator": "python", "avr": "avr", "host": "host"}
 FPS = 30.0
 
 
@@ -78,18 +87,30 @@ FPS = 30.0
 
 
 class EmulatorProcess:
-    """``vtexp device emulate`` in its own process, as firmware on its own microcontroller."""
+    """``vtexp device emulate`` in its own process, as firmware on its own microcontroller:
+    vtexp's model of the firmware (``python``), or the reference firmware in C, built for
+    this computer (``host``) or for the ATmega2560 in simavr (``avr``). ``spec`` is the
+    device spec it says to use (the C firmware's with its own timing options)."""
 
-    def __init__(self, profile: str):
+    def __init__(self, profile: str, firmware: str = "python"):
         env = dict(os.environ, PYTHONPATH=str(ROOT))
         self.p = subprocess.Popen([sys.executable, "-m", "vtexp", "device", "emulate",
-                                   "--profile", profile], stdout=subprocess.PIPE, text=True,
-                                  env=env)
+                                   "--profile", profile, "--firmware", firmware],
+                                  stdout=subprocess.PIPE, text=True, env=env)
         first = self.p.stdout.readline()
         if " on " not in first:
             self.p.kill()
-            raise SystemExit(f"the emulator did not start: {first!r}")
+            raise SystemExit(f"the {firmware} emulator did not start: {first!r}")
         self.port = first.rsplit(" on ", 1)[1].strip()
+        self.spec = f"serial:{self.port}"
+        if firmware != "python":
+            said = self.p.stdout.readline()
+            if "--device " in said:
+                self.spec = said.split("--device ", 1)[1].split()[0]
+            if firmware == "avr" and stream_watchdog_limit_ms(DeviceProfile.load(profile)) < 1000:
+                said = self.p.stdout.readline()     # the spec it gives for vtexp live
+                assert said.startswith("with vtexp live: --device "), said
+                self.spec = said.split("--device ", 1)[1].split()[0]
 
     def close(self) -> None:
         self.p.terminate()
@@ -98,9 +119,9 @@ class EmulatorProcess:
 
 def make_device(spec: str, profile):
     """(device, cleanup) for a bench device spec."""
-    if spec == "emulator":
-        emu = EmulatorProcess(profile.name)
-        return open_device(f"serial:{emu.port}", profile), emu.close
+    if spec in FIRMWARES:
+        emu = EmulatorProcess(profile.name, FIRMWARES[spec])
+        return open_device(emu.spec, profile), emu.close
     return open_device(spec, profile), (lambda: None)
 
 
@@ -122,6 +143,7 @@ class Log:
         self.degradations: dict[str, int] = {}
         self.elapsed = 0.0
         self.reconnects = 0
+        self.left_out = 0
 
 
 def run_vtexp_live(video: Path, setup: LiveSetup, device) -> Log:
@@ -141,6 +163,7 @@ def run_vtexp_live(video: Path, setup: LiveSetup, device) -> Log:
     log.degradations = dict(st.degradations)
     log.elapsed = st.elapsed_s
     log.reconnects = st.reconnects
+    log.left_out = st.changes_left_out
     return log
 
 
@@ -291,7 +314,8 @@ def figures(log: Log, truth, t_start, to_array, tx_bytes=None) -> dict:
         "bytes_per_s": None if tx_bytes is None else tx_bytes / max(log.elapsed, 1e-9),
         "deadline_late_max_ms": max(log.late_ms) if log.late_ms else None,
         "degradations": log.degradations,
-        "reconnects": getattr(log, "reconnects", 0),
+        "reconnects": log.reconnects,
+        "changes_left_out": log.left_out,
     }
 
 
@@ -350,7 +374,8 @@ def main() -> None:
             runs = [("vtexp live", play) for play in plays] + [("naive", "hold"),
                                                                  ("seed 001 (1 fps)", "hold")]
             for kind, play in runs:
-                setup = LiveSetup.make(pipeline, play=play)
+                how, _, follow = play.partition("/")
+                setup = LiveSetup.make(pipeline, play=how, follow=follow or "change")
                 f = measure(kind, path, truth, setup, spec)
                 row = {"device": spec_arg, "pipeline": pipeline, "profile": setup.profile.name,
                        "loop": kind, "play": play if kind == "vtexp live" else "full frame",
@@ -379,7 +404,7 @@ def print_table(rows: list[dict], seconds: float) -> None:
           f"{os.cpu_count()} CPUs")
     head = (f"{'device':11s} {'pipeline':16s} {'loop':17s} {'play':10s} {'fps':>5s} "
             f"{'drop':>5s} {'lat p50':>8s} {'p95':>7s} {'p99':>7s} {'track':>6s} "
-            f"{'p95':>5s} {'B/s':>7s} {'late':>6s}  degradations")
+            f"{'p95':>5s} {'B/s':>7s} {'late':>6s} {'out':>4s}  degradations")
     print(head)
     print("-" * len(head))
     for r in rows:
@@ -390,24 +415,26 @@ def print_table(rows: list[dict], seconds: float) -> None:
               f"{r['fps']:5.1f} {r['dropped']:5d} {fmt(r['latency_p50_ms']):>8s} "
               f"{fmt(r['latency_p95_ms']):>7s} {fmt(r['latency_p99_ms']):>7s} "
               f"{fmt(r['tracking_mean'], '.2f'):>6s} {fmt(r['tracking_p95'], '.2f'):>5s} "
-              f"{fmt(r['bytes_per_s'], '.0f'):>7s} {fmt(r['deadline_late_max_ms']):>6s}  {deg}")
-    print("\nratios, vtexp live (best play per pipeline) / naive, same device:")
+              f"{fmt(r['bytes_per_s'], '.0f'):>7s} {fmt(r['deadline_late_max_ms']):>6s} "
+              f"{r['changes_left_out']:4d}  {deg}")
+    print("\nratios, each vtexp live row / the naive loop, same device and pipeline:")
     for r in rows:
         if r["loop"] != "vtexp live":
             continue
         naive = next(x for x in rows if x["device"] == r["device"]
                      and x["pipeline"] == r["pipeline"] and x["loop"] == "naive")
-        print(f"  {r['device']:10s} {r['pipeline']:16s} {r['play']:6s} fps x"
+        print(f"  {r['device']:10s} {r['pipeline']:16s} {r['play']:11s} fps x"
               f"{r['fps'] / max(naive['fps'], 1e-9):.2f}, latency p95 x"
               f"{r['latency_p95_ms'] / naive['latency_p95_ms']:.2f}, tracking x"
               f"{r['tracking_mean'] / naive['tracking_mean']:.2f}")
-    print("\ngoals (issue 12): >= 30 fps, p95 latency <= 40 ms, tracking <= 0.5 pitch")
+    print("\ngoals (issue 12): >= 30 fps, p95 latency <= 40 ms, tracking <= 0.5 pitch "
+          "(vtexp live's plays; cycle/place, --follow place, is there to compare)")
     for r in rows:
-        if r["loop"] != "vtexp live":
+        if r["loop"] != "vtexp live" or r["play"] == "cycle/place":
             continue
         ok = [r["fps"] >= 29.5 and r["dropped"] == 0, r["latency_p95_ms"] <= 40,
               r["tracking_mean"] <= 0.5]
-        print(f"  {r['device']:10s} {r['pipeline']:16s} {r['play']:6s} "
+        print(f"  {r['device']:10s} {r['pipeline']:16s} {r['play']:11s} "
               + "  ".join(f"{name} {'met' if k else 'NOT met'}"
                           for name, k in zip(("fps", "latency", "tracking"), ok)))
 

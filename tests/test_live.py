@@ -23,7 +23,7 @@ from vtexp.errors import InputError
 from vtexp.live import LiveSetup, open_source, run_live
 from vtexp.live.loop import ClockMap, LiveRun
 from vtexp.live.encoder import LiveEncoder
-from vtexp.live.program import Program, carried_epoch
+from vtexp.live.program import Program, carried_epoch, change_epoch
 from vtexp.live.record import load_record, parse_state, format_state
 from vtexp.live.sources import ArraySource, LatestFrame, Frame
 from vtexp.live.synthetic import tracking_errors, write_video
@@ -95,6 +95,63 @@ def test_a_new_cycle_takes_over_at_the_same_fraction_of_its_cycle():
     assert new.phase(10.25, epoch) == pytest.approx(500.0)
 
 
+def _trace(cols: list[int], level: int = 1, row: int = 0) -> Program:
+    """A trace of one point per column along ``row``: 200 ms onset to onset, 200 ms each."""
+    pat = Pattern(rows=8, cols=6, points=[{"row": row, "col": c, "order": k}
+                                          for k, c in enumerate(cols)])
+    sched = Schedule(device="vest_6x8", pulses=[
+        Pulse(row=row, col=c, onset_ms=200 * k, duration_ms=200, level=level)
+        for k, c in enumerate(cols)])
+    return Program.build(sched, pat, 200.0 * len(cols))
+
+
+def test_a_new_cycle_goes_on_from_where_it_changed():
+    """Playing point 0 of a trace whose point 3 moved: the new cycle goes on from point 3,
+    felt at once, not a whole trace later."""
+    old, new = _trace([0, 1, 2, 3, 4]), _trace([0, 1, 2, 5, 4])
+    epoch = change_epoch(10.05, old, 10.0, new, showing={(0, 0): 1})   # old at 50 ms
+    assert new.phase(10.05, epoch) == pytest.approx(600.0)
+    assert new.state_at(new.phase(10.05, epoch)) == {(0, 5): 1}
+    # already changed where it is: no skip
+    moved = _trace([5, 1, 2, 3, 4])
+    assert moved.phase(10.05, change_epoch(10.05, old, 10.0, moved)) == pytest.approx(50.0)
+    # the same cycle: goes on at the same phase
+    same = _trace([0, 1, 2, 3, 4])
+    assert same.phase(10.05, change_epoch(10.05, old, 10.0, same)) == pytest.approx(50.0)
+
+
+def test_a_change_that_would_feel_like_nothing_is_passed_over():
+    """Point 1 moved to where the array is already playing (column 0, point 0): switching to
+    it changes no output, so the new cycle goes on from the next place that does."""
+    old, new = _trace([0, 1, 2, 3]), _trace([0, 0, 2, 4])
+    epoch = change_epoch(10.1, old, 10.0, new, showing={(0, 0): 1})     # old at 100 ms
+    assert new.phase(10.1, epoch) == pytest.approx(600.0, abs=1e-3)
+    # and a change in a stretch too short to be sent before it ends (the last 0.5 ms of
+    # point 0) is passed over for the next one (point 3)
+    epoch = change_epoch(10.1995, old, 10.0, _trace([5, 1, 2, 4]), showing={(0, 0): 1})
+    assert new.phase(10.1995, epoch) == pytest.approx(600.0, abs=1e-3)
+
+
+def test_a_longer_cycle_lines_up_with_the_old_one_point_for_point():
+    """A point inserted at the end: the points before it play at the same times in both, so
+    the change found is the inserted point, not everything after a stretched fraction."""
+    old, new = _trace([0, 1, 2, 3]), _trace([0, 1, 2, 3, 4])
+    epoch = change_epoch(10.05, old, 10.0, new, showing={(0, 0): 1})
+    assert new.phase(10.05, epoch) == pytest.approx(800.0, abs=1e-3)
+    assert new.state_at(new.phase(10.05, epoch)) == {(0, 4): 1}
+
+
+def test_a_held_cycle_changes_only_when_what_it_holds_changes():
+    a = Schedule(device="vest_6x8", pulses=[Pulse(row=0, col=c, onset_ms=200 * c,
+                                                  duration_ms=300, level=1) for c in range(3)])
+    b = Schedule(device="vest_6x8", pulses=[Pulse(row=0, col=c, onset_ms=150 * c,
+                                                  duration_ms=300, level=1) for c in range(3)])
+    pat = Pattern(rows=8, cols=6)
+    assert Program.build(a, pat, 600, hold=True).signature == \
+        Program.build(b, pat, 450, hold=True).signature
+    assert Program.build(a, pat, 600).signature != Program.build(b, pat, 450).signature
+
+
 def test_the_mailbox_keeps_the_newest_frame_and_counts_the_others_dropped():
     box = LatestFrame()
     for k in range(3):
@@ -152,6 +209,42 @@ def test_a_video_felt_live_on_the_emulator(tmp_path, videos, pipeline, video, pl
     if pipeline == "snake-corners":
         inits = list(rec.frames["snake_init"])
         assert inits[0] == "otsu" and inits.count("carried") >= 0.9 * len(inits)
+
+
+def test_each_change_of_a_trace_is_felt_in_the_first_outputs_sent_after_it(videos):
+    """Following changes (the default), a trace's new cycle goes on from where it changed:
+    the first frame of outputs sent after it took over already changes an output to what
+    the old cycle would not have asked (that frame's latency is measured there)."""
+    path, _ = videos["rectangle"]
+    setup = LiveSetup.make("edge-trace")
+    assert setup.follow == "change"
+    events = []
+    with open_device("sim", setup.profile) as dev:
+        st = LiveRun(open_source(str(path)), LiveEncoder(setup), dev,
+                     sinks=[lambda kind, e: events.append((kind, e))]).run()
+    news = [k for k, (kind, e) in enumerate(events) if kind == "program"][1:]
+    assert len(news) >= 5
+    for k in news:
+        first_out = next(e for kind, e in events[k:] if kind == "output")
+        assert first_out["latency_frame"] == events[k][1]["frame"]
+    assert st.frames_merged == 0 and len(st.latencies_ms) == len(news) + 1
+
+
+@pytest.mark.parametrize("play", ["cycle", "hold"])
+def test_every_change_is_accounted_for(videos, play):
+    """On the SMA panel held whole, more pins are asked than its power budget allows: each
+    change is felt (a latency), joined to the next (merged), already so on the array, or
+    left out by the guard — none is lost, none counted twice."""
+    path, _ = videos["rectangle"]
+    setup = LiveSetup.make("snake-corners", play=play)
+    with open_device("sim", setup.profile) as dev:
+        st = LiveRun(open_source(str(path)), LiveEncoder(setup), dev).run()
+    changes = st.frames_processed - st.frames_unchanged
+    accounted = (len(st.latencies_ms) + st.frames_merged + st.changes_in_place
+                 + st.changes_left_out)
+    assert changes - accounted in (0, 1)          # 1: the last one, not felt before the end
+    if play == "hold":
+        assert st.degradations["budget"] > 0
 
 
 def test_the_horse_refused_as_one_schedule_degrades_live_and_nothing_unsafe_is_sent(

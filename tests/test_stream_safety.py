@@ -40,13 +40,25 @@ def test_a_train_held_on_is_cut_before_max_on_and_rests():
     assert allowed == {(2, 2): TRAIN} and not notes
     allowed, notes = step(g, {(2, 2): TRAIN}, 950.0, log)
     assert allowed == {} and [n.kind for n in notes] == ["max_on"]
-    assert "cut short at 950 ms (limit 1000 ms), resting 100 ms" in notes[0].text
-    assert g.next_deadline_ms() == pytest.approx(1050.0, abs=0.01)  # the rest: max(20, 10 % of 1000)
-    allowed, notes = step(g, {(2, 2): TRAIN}, 1049.0, log)
+    assert "cut short at 950 ms (limit 1000 ms), resting 20 ms" in notes[0].text
+    assert g.next_deadline_ms() == pytest.approx(970.0, abs=0.01)  # the rest: min_off_ms
+    allowed, notes = step(g, {(2, 2): TRAIN}, 969.0, log)
     assert allowed == {} and [n.kind for n in notes] == ["rest"]
-    allowed, notes = step(g, {(2, 2): TRAIN}, 1050.01, log)
+    allowed, notes = step(g, {(2, 2): TRAIN}, 970.01, log)
     assert allowed == {(2, 2): TRAIN} and not notes
     check_schedule(outputs_schedule(log["changes"], SMA, end_ms=1100.0), SMA)
+
+
+def test_a_profile_without_cooling_still_rests_a_tenth_of_max_on():
+    """The vest's motors have no min_off_ms: a train cut at its maximum on-time rests a
+    tenth of max_on_ms (200 ms), so a held pattern is never on more than 91 % of the time."""
+    g = StreamGuard(VEST, margin_ms=50)
+    log = new_log()
+    step(g, {(0, 0): 1}, 0.0, log)
+    allowed, notes = step(g, {(0, 0): 1}, 1950.0, log)
+    assert allowed == {} and "resting 200 ms" in notes[0].text
+    assert step(g, {(0, 0): 1}, 2149.0, log)[0] == {}
+    assert step(g, {(0, 0): 1}, 2150.01, log)[0] == {(0, 0): 1}
 
 
 def test_an_sma_pin_stays_off_until_it_has_cooled():

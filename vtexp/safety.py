@@ -191,8 +191,8 @@ class StreamGuard:
 
     - **maximum on-time**: an actuator on for ``max_on_ms`` (less ``margin_ms``,
       the time the frame that stops it may take to reach the device) is switched
-      off — its train is cut short — and rests for ``rest_ms``: ``min_off_ms``, and
-      at least a tenth of ``max_on_ms``, so that a profile without a cooling time
+      off — its train is cut short — and rests for ``rest_ms``: ``min_off_ms``, or,
+      for a profile without a cooling time, a tenth of ``max_on_ms``, so that it
       still gets a real pause (at most 91 % on);
     - **cooling**: an actuator that stopped less than ``min_off_ms`` ago stays off
       (SMA wires, seed 002 §3.3), whether a frame or a play stopped it;
@@ -222,8 +222,8 @@ class StreamGuard:
         self.min_off_ms = lim.min_off_ms
         self.budget = lim.max_simultaneous
         self.margin_ms = min(margin_ms, lim.max_on_ms / 2)
-        self.rest_ms = rest_ms if rest_ms is not None else max(lim.min_off_ms,
-                                                               0.1 * lim.max_on_ms)
+        self.rest_ms = rest_ms if rest_ms is not None else (
+            lim.min_off_ms if lim.min_off_ms > 0 else 0.1 * lim.max_on_ms)
         self.last_off_ms = last_off_ms if last_off_ms is not None else {}
         self.on_since: dict[Actuator, float] = {}
         self.rest_until: dict[Actuator, float] = {}

@@ -242,6 +242,7 @@ def _emulate_c_firmware(args: argparse.Namespace, profile) -> int:
     """``vtexp device emulate --firmware avr|host``: the reference firmware in C."""
     from pathlib import Path
 
+    from ..devices.base import stream_watchdog_limit_ms
     from ..devices.cfirmware import AvrSimulator, HostFirmware
     from ..errors import InputError
 
@@ -267,6 +268,9 @@ def _emulate_c_firmware(args: argparse.Namespace, profile) -> int:
         # heartbeat and a longer wait for replies keep that from looking like a lost link
         out(f"use it with --device serial:{port},heartbeat_ms=1000,reply_ms=250   "
             "(Ctrl-C to stop)")
+        live = stream_watchdog_limit_ms(profile)
+        if live < 1000:         # the device's watchdog would be too long to stream with
+            out(f"with vtexp live: --device serial:{port},heartbeat_ms={live},reply_ms=250")
     else:
         out(f"use it with --device serial:{port}   (Ctrl-C to stop)")
     try:

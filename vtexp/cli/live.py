@@ -51,7 +51,11 @@ def summary_lines(stats, setup) -> list[str]:
     lines = [
         f"live: {s['frames_processed']} frames in {s['elapsed_s']:.1f} s = {s['fps']:.1f} fps; "
         f"captured {s['frames_captured']}, dropped {s['frames_dropped']}; "
-        f"{s['frames_unchanged']} changed nothing",
+        f"{s['frames_unchanged']} changed nothing"
+        + (f"; {s['changes_left_out']} changes left out by the safety guard (power "
+           f"budget)" if s["changes_left_out"] else "")
+        + (f"; {s['changes_in_place']} already so on the array" if s["changes_in_place"]
+           else ""),
         f"  glass-to-skin latency over {lat['n']} changes: p50 {lat['p50']:.1f} ms, "
         f"p95 {lat['p95']:.1f} ms, p99 {lat['p99']:.1f} ms" if lat["n"] else
         "  glass-to-skin latency: no change was felt",
@@ -73,7 +77,7 @@ def cmd_live(args) -> int:
     setup = LiveSetup.make(args.pipeline, profile=args.profile, coding=args.coding,
                            encoding_params=_params(args.param, "--param"),
                            coding_params=_params(args.coding_param, "--coding-param"),
-                           play=args.play)
+                           play=args.play, follow=args.follow)
     if args.duration is not None and args.duration <= 0:
         raise InputError("must be a number of seconds above 0", key="--duration")
     source = open_source(args.source, pace=not args.no_pace, fps=args.fps,
@@ -81,7 +85,8 @@ def cmd_live(args) -> int:
                          stall_s=args.stall_s)
     source.open()              # no camera, an unreadable video: said before anything else
     device = open_device(args.device, setup.profile)
-    out(f"live: {source.label} -> {setup.pipeline} -> {setup.coding} ({setup.play}) on "
+    how = setup.play if setup.play == "hold" else f"{setup.play}, follow {setup.follow}"
+    out(f"live: {source.label} -> {setup.pipeline} -> {setup.coding} ({how}) on "
         f"{setup.profile.name} via {args.device}"
         + (f"; recording to {args.record}" if args.record else "")
         + ("; Escape in the preview or Ctrl-C stops" if args.preview else "; Ctrl-C stops"))
@@ -173,6 +178,10 @@ def register(sub) -> None:
     s.add_argument("--play", choices=("cycle", "hold"), default="cycle",
                    help="play each frame's cycle in time (a trace, apparent movement), or "
                         "hold everything it drives at once (default: cycle)")
+    s.add_argument("--follow", choices=("change", "place"), default="change",
+                   help="when a frame changes a cycle played in time: go on from the first "
+                        "place ahead where it changed, felt at once (default), or from the "
+                        "same place, the change felt when the trace gets there")
     s.add_argument("--param", action="append", metavar="KEY=VALUE",
                    help="pipeline parameter (repeatable), e.g. fit=object")
     s.add_argument("--coding-param", action="append", metavar="KEY=VALUE",

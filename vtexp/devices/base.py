@@ -184,6 +184,11 @@ class DeviceBase:
         frame from the host), or None if it has none."""
         return None
 
+    def stream_watchdog_limit_ms(self) -> int:
+        """The longest device watchdog with which this profile can be streamed
+        (:func:`stream_watchdog_limit_ms`)."""
+        return stream_watchdog_limit_ms(self.profile, self.stream_checkin_ms)
+
     def _stream_margin(self) -> float:
         """How long before ``max_on_ms`` the guard cuts a train. With a watchdog: the
         check-in period, the watchdog and 10 ms for the last frame on the wire, so that even
@@ -191,6 +196,10 @@ class DeviceBase:
         actuator off before any exceeds its on-time."""
         wd = self.stream_watchdog_ms()
         return self.stream_margin_ms if wd is None else self.stream_checkin_ms + wd + 10.0
+
+    def _spec_with_watchdog(self, watchdog_ms: int) -> str | None:
+        """The ``--device`` spec of this device with that watchdog, if it has one."""
+        return None
 
     def stream_alive(self) -> None:
         """The stream's loop checks in without sending anything (nothing changed)."""
@@ -218,11 +227,14 @@ class DeviceBase:
         if self._guard is None:
             margin = self._stream_margin()
             if margin > self.profile.limits.max_on_ms / 2:
+                limit = self.stream_watchdog_limit_ms()
+                spec = self._spec_with_watchdog(limit)
                 raise InputError(
                     f"the device's watchdog ({self.stream_watchdog_ms():g} ms) is too long to "
                     f"stream to {self.profile.name} safely: a train would have to stop "
                     f"{margin:g} ms before max_on_ms {self.profile.limits.max_on_ms:g}; open it "
-                    "with a shorter heartbeat period", key="--device")
+                    f"with a watchdog of at most {limit} ms"
+                    + (f": --device {spec}" if spec else ""), key="--device")
             self._guard = StreamGuard(self.profile, self._last_off_ms, margin_ms=margin)
         if not self._streaming:
             self._alive_at = time.monotonic()
@@ -345,3 +357,11 @@ class DeviceBase:
         while (left := end - time.monotonic()) > 0:
             time.sleep(min(left, STOP_POLL_S))
             self._check_stop()
+
+
+def stream_watchdog_limit_ms(profile: DeviceProfile, checkin_ms: float = 50.0) -> int:
+    """The longest device watchdog (ms, whole tens) with which ``profile`` can be streamed:
+    the guard cuts trains the check-in period, the watchdog and 10 ms before
+    ``max_on_ms`` (:meth:`DeviceBase._stream_margin`), and that margin may be at most half
+    of ``max_on_ms``."""
+    return int((profile.limits.max_on_ms / 2.0 - checkin_ms - 10.0) // 10 * 10)

@@ -375,12 +375,33 @@ class SerialDevice(DeviceBase):
         except DeviceLost:
             raise self._lost(link.lost or "the link was lost") from None
 
+    def _spec_with_watchdog(self, watchdog_ms: int) -> str:
+        """This device's ``--device`` spec (its options that are not the defaults) with
+        that watchdog, and a heartbeat no longer than it."""
+        opts = []
+        if self.baudrate != 1_000_000:
+            opts.append(f"baud={self.baudrate}")
+        if self.heartbeat_ms > watchdog_ms:
+            opts.append(f"heartbeat_ms={watchdog_ms}")
+        elif self.heartbeat_ms != 200:
+            opts.append(f"heartbeat_ms={self.heartbeat_ms}")
+        opts.append(f"watchdog_ms={watchdog_ms}")
+        if self.reply_timeout_s != 0.025:
+            opts.append(f"reply_ms={self.reply_timeout_s * 1000:g}")
+        return ",".join([f"serial:{self.port}", *opts])
+
     def _watchdog_message(self) -> str:
         wd = self.hello.watchdog_ms if self.hello else self.watchdog_ms
+        longer = max(1000, 2 * wd)
+        if self._streaming:             # a stream holds max_on_ms only up to this watchdog
+            longer = min(longer, self.stream_watchdog_limit_ms())
         return (f"the device on {self.port} turned every actuator off: its watchdog heard "
                 f"nothing from this computer for {wd} ms (the program stalled, or the "
-                f"computer was too busy). A longer watchdog tolerates that: --device "
-                f"serial:{self.port},watchdog_ms={max(1000, 2 * wd)}")
+                f"computer was too busy). "
+                + (f"A longer watchdog tolerates that: --device {self._spec_with_watchdog(longer)}"
+                   if longer > wd else
+                   f"{self.profile.name} cannot be streamed with a longer one: keep the "
+                   "computer free of other work"))
 
     def _renew_session(self, link: Link) -> None:
         """A new session after the device's watchdog ended the last one."""

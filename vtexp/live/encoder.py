@@ -24,8 +24,10 @@ Live, the pipelines fit the camera's whole frame onto the array (``fit: frame``)
 that an object moving before the camera moves across the array; ``--param
 fit=object`` puts back the studies' fit (the object fills the array wherever it is).
 A cycle is one pass (``loops``/``cycles`` 1): it is the live loop that repeats it,
-in time (``play="cycle"``), or holds everything it drives at once (``play="hold"``: a
-static pattern refreshed, whatever the coding; :mod:`vtexp.live.program`).
+in time (``play="cycle"``; a new frame's cycle goes on from the first place where
+it changed, ``follow="change"``, or from the same place, ``follow="place"``), or
+holds everything it drives at once (``play="hold"``: a static pattern refreshed,
+whatever the coding; :mod:`vtexp.live.program`).
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ from ..encoding import PIPELINES
 from ..encoding.snake import SnakeTracker
 from ..errors import InputError
 from ..model import DeviceProfile, Pattern, Schedule
-from .program import Program
+from .program import FOLLOWS, Program
 
 LIVE_PIPELINES = ("height-contours", "edge-trace", "snake-corners")
 
@@ -71,12 +73,14 @@ class LiveSetup:
     encoding_params: dict[str, Any]
     coding_params: dict[str, Any]
     play: str = "cycle"
+    follow: str = "change"
     warnings: list[str] = field(default_factory=list)
 
     @classmethod
     def make(cls, pipeline: str, *, profile: DeviceProfile | str | None = None,
              coding: str | None = None, encoding_params: dict | None = None,
-             coding_params: dict | None = None, play: str = "cycle") -> LiveSetup:
+             coding_params: dict | None = None, play: str = "cycle",
+             follow: str = "change") -> LiveSetup:
         if pipeline not in LIVE_PIPELINES:
             raise InputError(f"unknown live pipeline {pipeline!r}; available: "
                              f"{', '.join(LIVE_PIPELINES)}", key="--pipeline")
@@ -110,7 +114,10 @@ class LiveSetup:
                              key=f"--coding-param {'.'.join(map(str, er['loc']))}") from None
         if play not in ("cycle", "hold"):
             raise InputError(f"play must be 'cycle' or 'hold' (got {play!r})", key="--play")
-        setup = cls(pipeline, prof, cod, enc, codp, play)
+        if follow not in FOLLOWS:
+            raise InputError(f"follow must be 'change' or 'place' (got {follow!r})",
+                             key="--follow")
+        setup = cls(pipeline, prof, cod, enc, codp, play, follow)
         setup._check_coding()
         return setup
 

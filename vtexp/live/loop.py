@@ -6,8 +6,9 @@ order, as often as something happens:
 1. take the newest frame from the capture thread's mailbox, if there is one
    (frames it had no time for were dropped there, never queued); encode and code
    it (:class:`~vtexp.live.encoder.LiveEncoder`); a cycle that differs from the one
-   playing replaces it at the same fraction of its cycle
-   (:func:`~vtexp.live.program.carried_epoch`);
+   playing replaces it, going on from the first place ahead where it differs
+   (``follow="change"``, :func:`~vtexp.live.program.change_epoch`) or from the same
+   place (``follow="place"``, :func:`~vtexp.live.program.carried_epoch`);
 2. work out what the array should do now (the cycle's state at this phase) and,
    if that changed, or the device's guard needs a frame (a train to cut at its
    maximum on-time, a rest that ends), send it: ``device.stream`` holds the
@@ -28,15 +29,17 @@ raises.
 **Glass-to-skin latency** of a change is the time from the capture of the frame
 that first showed it to the device-reported onset of the first output it changed:
 the first output sent that differs from what the cycle playing before that frame
-would have asked at that moment. A frame whose cycle equals the one playing changed
-nothing (counted as unchanged, no latency). Frames that change the cycle again
-before the first change was felt (a trace that has not reached the place that
-changed) join that change (counted as merged): its latency still runs from the
-first of them, so slow changes are not left out of the figures. With a cycle played
-in time (a trace), a change away from the point being played is felt when the
-trace gets there; held patterns are felt at once. The device reports onsets on its
-own clock; they are put on the host's clock (``time.monotonic``) by
-:class:`ClockMap`.
+would have asked at that moment (at the same place along it), to what the new cycle
+asks. A frame whose cycle equals the one playing changed nothing (counted as
+unchanged, no latency). Frames that change the cycle again before the first change
+was felt join that change (counted as merged): its latency still runs from the
+first of them, so slow changes are not left out of the figures. A change may wait
+for the safety guard (a pin resting or cooling) or, with ``follow="place"``, for a
+trace to reach the place that changed. A change with no onset to measure is counted
+apart: one already so on the array (it switches off outputs that the guard was
+holding off: ``changes_in_place``), and one whose outputs the guard leaves out (over
+the power budget, or beyond a limit: ``changes_left_out``). The device reports onsets on its own
+clock; they are put on the host's clock (``time.monotonic``) by :class:`ClockMap`.
 """
 
 from __future__ import annotations
@@ -55,7 +58,7 @@ from ..devices.base import DeviceBase, StreamReport
 from ..errors import DeviceError, InputError, SessionAborted
 from ..safety import Actuator, Drive
 from .encoder import Encoded, LiveEncoder
-from .program import Program, carried_epoch
+from .program import Program, carried_epoch, change_epoch
 from .sources import Capture, Frame, FrameSource, LatestFrame, SourceEnded
 
 
@@ -97,6 +100,8 @@ class LiveStats:
     frames_unchanged: int = 0
     frames_merged: int = 0
     frames_empty: int = 0
+    changes_in_place: int = 0
+    changes_left_out: int = 0
     latencies_ms: list[float] = field(default_factory=list)
     process_ms: list[float] = field(default_factory=list)
     deadline_late_ms: list[float] = field(default_factory=list)
@@ -138,6 +143,8 @@ class LiveStats:
             "frames_unchanged": self.frames_unchanged,
             "frames_merged": self.frames_merged,
             "frames_empty": self.frames_empty,
+            "changes_in_place": self.changes_in_place,
+            "changes_left_out": self.changes_left_out,
             "fps": round(self.fps, 2),
             "latency_ms": {"n": len(lat), **{f"p{q}": round(self.latency(q), 3)
                                             for q in (50, 95, 99)},
@@ -260,7 +267,7 @@ class LiveRun:
                     break
                 if frame is not None:
                     last_frame_at = now
-                    pending = self._process(frame, pending, now)
+                    pending = self._process(frame, pending)
                 elif now - last_frame_at > self.stall_s:
                     raise InputError(f"{self.source.label} stopped delivering frames (none for "
                                      f"{self.stall_s:g} s)", key="SOURCE")
@@ -350,9 +357,10 @@ class LiveRun:
         # anew; a board resets when its port opens): map it afresh
         self.clock = ClockMap()
 
-    def _process(self, frame: Frame, pending: _Pending | None, now: float) -> _Pending | None:
+    def _process(self, frame: Frame, pending: _Pending | None) -> _Pending | None:
         st = self.stats
         enc = self.encoder.process(frame.image, frame=frame.index, t_capture=frame.t_capture)
+        now = time.monotonic()          # the new cycle takes over from here, not from before
         st.frames_processed += 1
         st.frames_captured = self.mailbox.captured
         st.frames_dropped = self.mailbox.dropped
@@ -370,7 +378,17 @@ class LiveRun:
                 st.frames_merged += 1
             else:
                 pending = _Pending(frame.index, frame.t_capture, old, self.epoch)
-            self.epoch = carried_epoch(now, old, self.epoch, new) if new is not None else None
+            if new is None:
+                self.epoch = None
+            elif self.encoder.setup.follow == "change":
+                # from the cycle playing, to a place where the array will change to what
+                # would not have played without the change(s) not yet felt
+                first = pending.old
+                before = first.state_at(first.phase(now, pending.old_epoch)) \
+                    if first is not None else {}
+                self.epoch = change_epoch(now, old, self.epoch, new, self._applied, before)
+            else:
+                self.epoch = carried_epoch(now, old, self.epoch, new)
             self.program = new
             if new is not None:
                 self._emit("program", {"frame": frame.index, "cycle_ms": new.cycle_ms,
@@ -407,18 +425,35 @@ class LiveRun:
         latency = None
         resolved = None
         prev, self._applied = self._applied, rep.applied
-        if pending is not None and rep.changed and onset_host is not None:
+        if pending is not None:
             old = pending.old
             before = old.state_at(old.phase(now, pending.old_epoch)) if old is not None else {}
+            now_on = rep.applied
+            asked = [k for k in desired.keys() | before.keys() if desired.get(k) != before.get(k)]
             # Felt: an output that the change asks to differ was changed, to what it asks.
-            felt = any(desired.get(k) != before.get(k) and prev.get(k) != rep.applied.get(k)
-                       and rep.applied.get(k) == desired.get(k)
-                       for k in desired.keys() | before.keys())
-            if felt:
+            if rep.changed and onset_host is not None and any(
+                    prev.get(k) != now_on.get(k) and now_on.get(k) == desired.get(k)
+                    for k in asked):
                 latency = onset_host - pending.t_capture * 1000.0
                 st.latencies_ms.append(latency)
                 resolved = pending.frame
                 pending = None
+            elif asked:
+                # Not felt now. Held for a while (a pin resting or cooling): it will be, and
+                # its latency runs on. Otherwise nothing will change for it, and it is not
+                # carried into the next change's latency: it is already so on the array
+                # (the outputs it switches off were off, held by the guard), or what it
+                # switches on the guard leaves out (over the power budget, or never driven).
+                left_out = {k for d in rep.degradations if d.kind in ("budget", "refused")
+                            for k in d.actuators}
+                waiting = [k for k in asked if now_on.get(k) != desired.get(k)
+                           and k not in left_out]
+                if not waiting:
+                    if all(prev.get(k) == now_on.get(k) == desired.get(k) for k in asked):
+                        st.changes_in_place += 1
+                    else:
+                        st.changes_left_out += 1
+                    pending = None
         self._emit("output", {
             "t_host": rep.host_before_ms / 1000.0, "t_device_ms": rep.t_device_ms,
             "t_onset_host": None if onset_host is None else onset_host / 1000.0,

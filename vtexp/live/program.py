@@ -15,11 +15,15 @@ every actuator it drives, on together at the strongest drive the cycle gives it 
 pin shared by phantom points at its strongest share) — a static pattern refreshed
 as the frame changes, whatever the coding.
 
-When a newer frame's program replaces the current one, it takes over at the same
-*fraction* of its cycle (:func:`carried_epoch`): a trace goes on from the point at
-the same place along the new outline, instead of starting over at its first point
-at every frame (at 30 frames per second a trace restarted at each frame would never
-get past its first point).
+When a newer frame's program replaces the current one, it never starts over at its
+first point (at 30 frames per second a trace restarted at each frame would never get
+past it). By default (``follow="change"``, :func:`change_epoch`) it goes on from the
+first place ahead where it differs from the cycle playing (the two compared in step,
+phase for phase): the change is felt at once, and the stretch of the outline that
+stayed as it was, felt on the pass before, is skipped. With ``follow="place"`` it
+takes over at the same *fraction* of its cycle (:func:`carried_epoch`), the same
+place along the new outline, and a change elsewhere along the outline is felt when
+the trace gets there (up to a whole cycle later).
 """
 
 from __future__ import annotations
@@ -52,7 +56,10 @@ class Program:
         p = cls(schedule, pattern, max(float(cycle_ms), 1e-3), frame, t_capture)
         p.times, p.states = ([0.0], [held(schedule)]) if hold else segments(schedule,
                                                                             p.cycle_ms)
-        p.signature = (hold, *signature(schedule, p.cycle_ms))
+        # Held, a cycle is its one state: a frame that changes only the timing of the
+        # schedule (not what is held) changes nothing.
+        p.signature = (True, *_state_key(p.states[0])) if hold else \
+            (False, *signature(schedule, p.cycle_ms))
         return p
 
     def phase(self, now_s: float, epoch_s: float) -> float:
@@ -161,3 +168,57 @@ def carried_epoch(now_s: float, old: Program | None, old_epoch: float | None,
         return now_s
     fraction = old.phase(now_s, old_epoch) / old.cycle_ms
     return now_s - fraction * new.cycle_ms / 1000.0
+
+
+FOLLOWS = ("change", "place")
+#: A stretch shorter than this (ms) is passed over by :func:`change_epoch`: it could end
+#: between the new cycle taking over and the loop sending its outputs.
+_STRETCH_MS = 2.0
+
+
+def change_epoch(now_s: float, old: Program | None, old_epoch: float | None,
+                 new: Program, showing: dict[Actuator, Drive] | None = None,
+                 before: dict[Actuator, Drive] | None = None) -> float:
+    """The epoch at which ``new`` starts when it takes over from ``old`` with
+    ``follow="change"`` (module docstring).
+
+    The two cycles are compared in step from where ``old`` is now (the same phase, in
+    ms: a trace plays its n-th point at the same time in both, so the part of the outline
+    before a change lines up), stretch by stretch, as far as the longer cycle; ``new``
+    starts at the first stretch where it asks an output to differ from what ``old``
+    asks there, from what the array is ``showing`` and from what would play now
+    without the change (``before``; default: ``old`` now). An outline shifted along the
+    trace may ask, a point further on, for what is playing already: nothing would be
+    felt there, so it is passed over. Where ``new`` is shorter than the phase ``old``
+    has reached, it goes round (its next pass). If there is no such stretch, ``new``
+    takes over at the same phase."""
+    if old is None or old_epoch is None:
+        return now_s
+    p = old.phase(now_s, old_epoch)
+    now_old = old.state_at(p)
+    before = now_old if before is None else before
+    showing = now_old if showing is None else showing
+    span = max(old.cycle_ms, new.cycle_ms)
+    cuts = {p, p + span}
+    for prog in (old, new):
+        m = math.floor(p / prog.cycle_ms)
+        while m * prog.cycle_ms < p + span:
+            cuts.update(u for t in prog.times if p < (u := m * prog.cycle_ms + t) < p + span)
+            m += 1
+    edges = sorted(cuts)
+    for a, b in zip(edges, edges[1:]):
+        if b - a < _STRETCH_MS:       # over before the loop sends it
+            continue
+        mid = (a + b) / 2.0         # within the stretch: a boundary, rounded, may fall aside
+        x, y = new.state_at(mid % new.cycle_ms), old.state_at(mid % old.cycle_ms)
+        if any(x.get(k) != y.get(k) and x.get(k) != showing.get(k) and x.get(k) != before.get(k)
+               for k in x.keys() | y.keys()):
+            start = p if a == p else a + min(1e-6, (b - a) / 4.0)
+            return now_s - (start % new.cycle_ms) / 1000.0
+    return now_s - (p % new.cycle_ms) / 1000.0
+
+
+def _state_key(state: dict[Actuator, Drive]) -> tuple:
+    return tuple((k, d if isinstance(d, int) else
+                  (d.amplitude_v, d.frequency_hz, d.pulse_width_ms))
+                 for k, d in sorted(state.items()))

@@ -149,6 +149,7 @@ class LiveTrial:
             "source": source.label, "pipeline": setup.pipeline,
             "encoding_params": setup.encoding_params, "coding": setup.coding,
             "coding_params": setup.coding_params,
+            "play": setup.play, "follow": setup.follow,
             "profile": setup.profile.model_dump(mode="json")}, t0=time.monotonic())
         self.run = LiveRun(source, LiveEncoder(setup), device, sinks=[self.recorder],
                            stall_s=5.0)
