@@ -159,6 +159,27 @@ def test_the_mailbox_keeps_the_newest_frame_and_counts_the_others_dropped():
     assert box.take().index == 2 and box.dropped == 2 and box.take() is None
 
 
+def test_a_video_not_paced_gives_every_frame_as_fast_as_the_loop_takes_it(videos):
+    """--no-pace (throughput): the capture waits for the loop instead of replacing a
+    frame it has not taken, so every frame is processed and none dropped; paced, a
+    camera's rate, and a loop held up drops frames instead of queueing them."""
+    path, truth = videos["rectangle"]
+    setup = LiveSetup.make("edge-trace")
+    with open_device("sim", setup.profile) as dev:
+        st = LiveRun(open_source(str(path), pace=False), LiveEncoder(setup), dev).run()
+    assert st.frames_captured == st.frames_processed == len(truth) and st.frames_dropped == 0
+
+    class Slow(LiveEncoder):
+        def process(self, gray, **kw):
+            time.sleep(0.1)                       # a loop three frames behind the camera
+            return super().process(gray, **kw)
+
+    with open_device("sim", setup.profile) as dev:
+        st = LiveRun(open_source(str(path)), Slow(setup), dev).run()
+    assert st.frames_captured == len(truth) and st.frames_dropped > len(truth) / 2
+    assert st.frames_processed + st.frames_dropped == st.frames_captured
+
+
 def test_the_clock_map_uses_the_shortest_round_trip():
     c = ClockMap()
     c.add(100.0, 110.0, 5000.0)      # device clock 4895 ms ahead, +-5 ms

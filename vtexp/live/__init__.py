@@ -11,7 +11,7 @@ the object "even if the object moves"). This package is that path:
 ``encoder``        frame -> Pattern -> one cycle of the paper's coding; the live
                    defaults of each pipeline; the snake carried between frames
 ``program``        a cycle as the outputs it asks for at each phase; a new cycle
-                   takes over at the same fraction of its cycle
+                   goes on from where it changed (or from the same place)
 ``loop``           the loop: frame -> cycle -> ``device.stream`` (changes only,
                    limits across frames); latency, dropped frames, clock mapping
 ``record``         ``--record DIR``: every frame, cycle and output, to replay and

@@ -29,17 +29,18 @@ raises.
 **Glass-to-skin latency** of a change is the time from the capture of the frame
 that first showed it to the device-reported onset of the first output it changed:
 the first output sent that differs from what the cycle playing before that frame
-would have asked at that moment (at the same place along it), to what the new cycle
-asks. A frame whose cycle equals the one playing changed nothing (counted as
-unchanged, no latency). Frames that change the cycle again before the first change
-was felt join that change (counted as merged): its latency still runs from the
-first of them, so slow changes are not left out of the figures. A change may wait
-for the safety guard (a pin resting or cooling) or, with ``follow="place"``, for a
-trace to reach the place that changed. A change with no onset to measure is counted
-apart: one already so on the array (it switches off outputs that the guard was
-holding off: ``changes_in_place``), and one whose outputs the guard leaves out (over
-the power budget, or beyond a limit: ``changes_left_out``). The device reports onsets on its own
-clock; they are put on the host's clock (``time.monotonic``) by :class:`ClockMap`.
+would have asked at that moment, to what the new cycle asks. A frame whose cycle
+equals the one playing changed nothing (counted as unchanged, no latency). Frames
+that change the cycle again before the first change was felt join that change
+(counted as merged): its latency still runs from the first of them, so slow changes
+are not left out of the figures. A change may wait for the safety guard (a pin
+resting or cooling) or, with ``follow="place"``, for a trace to reach the place that
+changed. A change with no onset to measure is counted apart: one already so on the
+array (it switches off outputs that the guard was holding off:
+``changes_in_place``), and one whose outputs the guard leaves out (over the power
+budget, or beyond a limit: ``changes_left_out``). The device reports onsets on its
+own clock; they are put on the host's clock (``time.monotonic``) by
+:class:`ClockMap`.
 """
 
 from __future__ import annotations

@@ -402,8 +402,13 @@ class LatestFrame:
         self.captured = 0
         self.last_capture: float | None = None
 
-    def put(self, frame: Frame) -> None:
+    def put(self, frame: Frame, *, block: bool = False,
+            stop: threading.Event | None = None) -> None:
+        """Leave ``frame`` for :meth:`take`, replacing one not yet taken (dropped); with
+        ``block``, wait until the last one was taken instead (or ``stop`` is set)."""
         with self._cond:
+            while block and self._frame is not None and not (stop and stop.is_set()):
+                self._cond.wait(0.05)
             if self._frame is not None:
                 self.dropped += 1
             self._frame = frame
@@ -429,6 +434,8 @@ class LatestFrame:
             f, self._frame = self._frame, None
             if f is None and self._ended:
                 raise SourceEnded()
+            if f is not None:
+                self._cond.notify_all()         # a blocked put may go on
             return f
 
     def wait(self, timeout: float) -> None:
@@ -457,9 +464,12 @@ class Capture:
         self._thread.start()
 
     def _run(self) -> None:
+        # A file or folder not paced at its frame rate waits for the loop to take each
+        # frame (every frame processed, as fast as the loop goes); a camera never waits.
+        block = getattr(self.source, "pace", True) is False
         try:
             for frame in self.source.frames(self.stop_event):
-                self.mailbox.put(frame)
+                self.mailbox.put(frame, block=block, stop=self.stop_event)
                 if self.stop_event.is_set():
                     break
             self.mailbox.end()
