@@ -366,46 +366,36 @@ def main() -> None:
         path = out_dir / f"live-{obj}.avi"
         videos[obj] = (path, write_video(path, obj, seconds=seconds, size=size, fps=FPS))
     rows = []
-    for spec_arg in specs:
-        spec, _, only = spec_arg.partition("=")
-        for pipeline, obj, _, plays in PIPELINES:
-            setup0 = LiveSetup.make(pipeline)
-            if only and setup0.profile.name != only:
-                continue
-            path, truth = videos[obj]
-            runs = [("vtexp live", play) for play in plays] + [("naive", "hold"),
-                                                                 ("seed 001 (1 fps)", "hold")]
-            for kind, play in runs:
-                how, _, follow = play.partition("/")
-                setup = LiveSetup.make(pipeline, play=how, follow=follow or "change")
-                f = measure(kind, path, truth, setup, spec)
-                row = {"device": spec_arg, "pipeline": pipeline, "profile": setup.profile.name,
-                       "loop": kind, "play": play if kind == "vtexp live" else "full frame",
-                       **f}
-                rows.append(row)
-                print(f"  {spec_arg:10s} {pipeline:16s} {kind:17s} {row['play']:10s} "
-                      f"{f['fps']:5.1f} fps  p95 {f['latency_p95_ms']:7.1f} ms  "
-                      f"track {f['tracking_mean']:.2f}", flush=True)
+    for spec_arg, spec, pipeline, obj, plays in cases(specs):
+        path, truth = videos[obj]
+        runs = [("vtexp live", play) for play in plays] + [("naive", "hold"),
+                                                             ("seed 001 (1 fps)", "hold")]
+        for kind, play in runs:
+            how, _, follow = play.partition("/")
+            setup = LiveSetup.make(pipeline, play=how, follow=follow or "change")
+            f = measure(kind, path, truth, setup, spec)
+            row = {"device": spec_arg, "pipeline": pipeline, "profile": setup.profile.name,
+                   "loop": kind, "play": play if kind == "vtexp live" else "full frame", **f}
+            rows.append(row)
+            print(f"  {spec_arg:10s} {pipeline:16s} {kind:17s} {row['play']:10s} "
+                  f"{f['fps']:5.1f} fps  p95 {f['latency_p95_ms']:7.1f} ms  "
+                  f"track {f['tracking_mean']:.2f}", flush=True)
     print_table(rows, seconds)
     # Headroom: the same videos delivered as fast as the loop takes them (no pacing, so
     # nothing is dropped and latency means nothing): the frame rate the loop sustains.
     capacity = []
-    for spec_arg in specs:
-        spec, _, only = spec_arg.partition("=")
-        for pipeline, obj, _, _ in PIPELINES:
-            setup = LiveSetup.make(pipeline)
-            if only and setup.profile.name != only:
-                continue
-            device, cleanup = make_device(spec, setup.profile)
-            try:
-                st = LiveRun(VideoSource(videos[obj][0], pace=False), LiveEncoder(setup),
-                             device).run()
-            finally:
-                device.close()
-                cleanup()
-            capacity.append({"device": spec_arg, "pipeline": pipeline,
-                             "frames": st.frames_processed, "fps": st.fps,
-                             "process_p95_ms": st.summary()["process_ms"]["p95"]})
+    for spec_arg, spec, pipeline, obj, _ in cases(specs):
+        setup = LiveSetup.make(pipeline)
+        device, cleanup = make_device(spec, setup.profile)
+        try:
+            st = LiveRun(VideoSource(videos[obj][0], pace=False), LiveEncoder(setup),
+                         device).run()
+        finally:
+            device.close()
+            cleanup()
+        capacity.append({"device": spec_arg, "pipeline": pipeline,
+                         "frames": st.frames_processed, "fps": st.fps,
+                         "process_p95_ms": st.summary()["process_ms"]["p95"]})
     print("\nheadroom: the same videos as fast as vtexp live takes them (play cycle)")
     for c in capacity:
         print(f"  {c['device']:10s} {c['pipeline']:16s} {c['frames']:5d} frames  "
@@ -418,6 +408,16 @@ def main() -> None:
               "rows": rows, "headroom": capacity}
     (out_dir / "live.json").write_text(json.dumps(result, indent=2, default=float))
     print(f"\nwritten: {out_dir / 'live.json'}")
+
+
+def cases(specs: list[str]):
+    """(device argument, device spec, pipeline, video object, plays) for each device and
+    each pipeline of its profile (all, unless the argument ends in ``=PROFILE``)."""
+    for spec_arg in specs:
+        spec, _, only = spec_arg.partition("=")
+        for pipeline, obj, _, plays in PIPELINES:
+            if not only or LiveSetup.make(pipeline).profile.name == only:
+                yield spec_arg, spec, pipeline, obj, plays
 
 
 def fmt(x, spec=".1f"):

@@ -336,14 +336,7 @@ def test_vtexp_live_records_a_run_that_can_be_audited_and_replayed(tmp_path, vid
     assert lr.meta["status"] == "completed" and lr.meta["summary"]["frames_processed"] > 0
     assert lr.meta["pipeline"] == "snake-corners" and lr.meta["profile"]["name"] == "sma_5x5"
     # What was sent, stamped on the host's clock, is within the limits as well.
-    changes = []
-    prev: dict = {}
-    for t, state in lr.states():
-        for k in prev.keys() | state.keys():
-            if prev.get(k) != state.get(k):
-                changes.append((t, k, state.get(k)))
-        prev = state
-    check_schedule(outputs_schedule(changes, SMA), SMA)
+    check_schedule(outputs_schedule(lr.changes(), SMA), SMA)
     again = run_cli("live-replay", str(rec), "--device", "emulator")
     assert again.returncode == 0, again.stderr
     assert "replayed; every actuator is off" in again.stdout

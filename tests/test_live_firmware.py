@@ -84,13 +84,7 @@ def test_a_moving_object_felt_live_on_the_chip(live_on_the_chip):
     # held whole, the outline asks for more pins than the budget and for longer than
     # max_on_ms: the guard cut trains and skipped pins, and said so
     assert s["degradations"]["max_on"] > 0 and s["degradations"]["budget"] > 0
-    changes, prev = [], {}
-    for t, state in lr.states():
-        for k in prev.keys() | state.keys():
-            if prev.get(k) != state.get(k):
-                changes.append((t, k, state.get(k)))
-        prev = state
-    check_schedule(outputs_schedule(changes, SMA), SMA)
+    check_schedule(outputs_schedule(lr.changes(), SMA), SMA)
 
 
 def test_the_pins_stayed_within_the_profile(live_on_the_chip):

@@ -214,6 +214,17 @@ class LiveRecord:
         return [(float(t), parse_state(s if isinstance(s, str) else ""))
                 for t, s in zip(self.outputs["t_host_ms"], self.outputs["outputs"])]
 
+    def changes(self) -> list[tuple[float, Actuator, Drive | None]]:
+        """Every output change, ``(host ms, actuator, drive or None for off)``: what the
+        array did, for :func:`vtexp.safety.outputs_schedule` to audit."""
+        out: list[tuple[float, Actuator, Drive | None]] = []
+        prev: dict[Actuator, Drive] = {}
+        for t, state in self.states():
+            out.extend((t, k, state.get(k)) for k in sorted(prev.keys() | state.keys())
+                       if prev.get(k) != state.get(k))
+            prev = state
+        return out
+
 
 def load_record(folder: str | Path) -> LiveRecord:
     """Read a record folder; a row cut off mid-write is dropped and counted."""
