@@ -89,6 +89,14 @@ class _ByteTrigger(MarkerSink):
                     pass
 
 
+def _known(opts: dict, spec: str, allowed: tuple[str, ...]) -> None:
+    """Refuse an option of ``spec`` that is not one of ``allowed`` (each a number)."""
+    unknown = set(opts) - set(allowed)
+    if unknown:
+        raise InputError(f"{spec}: unknown option {sorted(unknown)[0]!r} ("
+                         + ", ".join(f"{k}=N" for k in allowed) + ")", key="--markers")
+
+
 def _number(opts: dict, key: str, default: float | None, spec: str) -> float | None:
     if key not in opts:
         return default
@@ -115,10 +123,7 @@ class SerialTrigger(_ByteTrigger):
         import serial
 
         spec = f"serial:{target}"
-        unknown = set(opts) - {"baud", "reset_ms"}
-        if unknown:
-            raise InputError(f"{spec}: unknown option {sorted(unknown)[0]!r} (baud=N, "
-                             "reset_ms=N)", key="--markers")
+        _known(opts, spec, ("baud", "reset_ms"))
         baud = _number(opts, "baud", 115200, spec)
         reset = _number(opts, "reset_ms", None, spec)
         try:
@@ -153,10 +158,7 @@ class ParallelTrigger(_ByteTrigger):
     @classmethod
     def open(cls, target: str, opts: dict, warn=None) -> ParallelTrigger:
         spec = f"parallel:{target}"
-        unknown = set(opts) - {"pulse_ms"}
-        if unknown:
-            raise InputError(f"{spec}: unknown option {sorted(unknown)[0]!r} (pulse_ms=N)",
-                             key="--markers")
+        _known(opts, spec, ("pulse_ms",))
         pulse = _number(opts, "pulse_ms", 5.0, spec) or 5.0
         address: str | int = target
         if target.lower().startswith("0x"):
