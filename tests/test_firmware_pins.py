@@ -17,6 +17,7 @@ about what the firmware or the host believe:
 
 from __future__ import annotations
 
+import random
 import time
 
 import numpy as np
@@ -306,6 +307,39 @@ def test_sma_pins_off_when_the_host_goes_silent():
     assert edges and edges[-1][1] == 0
     rises = [c for c, s in edges if s]
     assert fwtrace.us(rises[-1] - tr.rx0[-1]) / 1000 < 100 + 1    # no pulse after the watchdog
+
+
+def test_no_sma_pulse_outlasts_its_width_when_trains_change_mid_pulse():
+    """Trains on all 25 pins, changed again and again at random moments to another
+    width, amplitude or frequency. A change that comes during a pulse lets that pulse end
+    when it was to (its rest is the new train's first pulse), never joined to a new one;
+    with 25 pins on, ticks come while the one before is still preparing (vt_late_ticks),
+    and their falls still come on time (the fall ring). From the pins: no pulse is longer
+    than the widest train, 1500 us."""
+    settings = [wire.Train(2000, 4000, 1500), wire.Train(1410, 4000, 1000),
+                wire.Train(2000, 2500, 1500), wire.Train(1000, 5000, 500)]
+    rng = random.Random(12)
+    with AvrSimulator("sma_5x5") as sim:
+        link = Raw(sim.port)
+        link.send(wire.Hello(1, 1000, 1000), 0)
+        link.send(wire.SetFrame(2, tuple((i, settings[0]) for i in range(25))), 1)
+        for seq in range(2, 160):
+            time.sleep(rng.uniform(0.002, 0.02))
+            pins = rng.sample(range(25), rng.randint(3, 25))
+            link.send(wire.SetFrame(2, tuple((i, rng.choice(settings)) for i in pins)), seq)
+        link.send(wire.AllOff(), 160)
+    tr = fwtrace.Trace.load(sim.trace_path)         # with the counters read at the end
+    late = sim.peeked(tr)
+    pulses = fwtrace.pin_pulses(tr, 25)
+    widths = [fwtrace.us(f - r) for ps in pulses.values() for r, f in ps]
+    assert len(widths) > 1000
+    assert max(widths) <= 1500 + 20, max(widths)        # an edge's jitter: a few us
+    syncs = tr.sync_rises
+    during = sum(int(np.count_nonzero((syncs > r + 320) & (syncs < f - 320)))
+                 for ps in pulses.values() for r, f in ps)
+    assert during > 30                  # changes that came mid-pulse, on some pin
+    assert late["vt_late_ticks"] > 0 and late["vt_uart_overruns"] == 0, late
+    assert fwtrace.all_off_at_end(tr, 25)
 
 
 def test_output_enable_stays_off_through_a_reset():

@@ -227,7 +227,7 @@ class AvrSimulator(_Process):
     name = "the ATmega2560 in simavr"
 
     #: firmware variables read at the end of a run (``Trace.peeks``; see :meth:`peeked`)
-    WATCH = {"vt_uart_overruns": 2}
+    WATCH = {"vt_uart_overruns": 2, "vt_late_ticks": 2}
 
     def __init__(self, profile: str | None, *, trace: Path | None = None,
                  faults: tuple[float, float, float] = (0.0, 0.0, 0.0), seed: int = 0,
@@ -249,17 +249,22 @@ class AvrSimulator(_Process):
         self._watch: dict[int, tuple[str, int]] = {}
         try:
             argv += ["--stack-from", hex(symbol(self.elf, "__bss_end"))]
-            for name, size in self.WATCH.items():
-                addr = symbol(self.elf, name)
-                self._watch[addr] = (name, size)
-                argv += ["--peek", f"{addr:#x}:{size}"]
         except (KeyError, OSError, subprocess.CalledProcessError):
             pass
+        for name, size in self.WATCH.items():
+            try:
+                addr = symbol(self.elf, name)
+            except (KeyError, OSError, subprocess.CalledProcessError):
+                continue                      # not in this build (a port's own counter)
+            self._watch[addr] = (name, size)
+            argv += ["--peek", f"{addr:#x}:{size}"]
         super().__init__(argv, trace)
 
     def peeked(self, trace) -> dict[str, int]:
         """The watched firmware variables at the end of the run (little-endian), e.g.
-        ``vt_uart_overruns``: bytes the UART receive ring had to drop."""
+        ``vt_uart_overruns``: bytes the UART receive ring had to drop; ``vt_late_ticks``
+        (pulse trains): ticks that came while the one before was still preparing, whose
+        edges went out a tick late."""
         return {name: int.from_bytes(trace.peeks[a][:size], "little")
                 for a, (name, size) in self._watch.items() if a in trace.peeks}
 

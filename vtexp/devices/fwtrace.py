@@ -303,6 +303,22 @@ class Train:
         return [us(b[0] - a[0]) for a, b in zip(self.pulses, self.pulses[1:])]
 
 
+def pin_pulses(trace: Trace, n_pins: int = 25) -> dict[int, list[tuple[int, int]]]:
+    """Pin → ``[(rise cycle, fall cycle)]``: every pulse its gate made (one still high at
+    the end of the trace is left out)."""
+    out: dict[int, list[tuple[int, int]]] = {}
+    for i, edges in gate_edges(trace, n_pins).items():
+        pulses = out[i] = []
+        rise = None
+        for c, s in edges:
+            if s:
+                rise = c
+            elif rise is not None:
+                pulses.append((rise, c))
+                rise = None
+    return out
+
+
 def trains(trace: Trace, n_pins: int = 25, gap_us: float = 100_000.0) -> list[Train]:
     """Group each pin's pulses into trains: a new train starts at a sync edge (an onset)
     or after ``gap_us`` without a pulse, unless the pulse comes one period after the
@@ -311,15 +327,7 @@ def trains(trace: Trace, n_pins: int = 25, gap_us: float = 100_000.0) -> list[Tr
     rises = trace.sync_rises
     codes = dac_codes(trace)
     out: list[Train] = []
-    for i, edges in gate_edges(trace, n_pins).items():
-        pulses = []
-        rise = None
-        for c, s in edges:
-            if s:
-                rise = c
-            elif rise is not None:
-                pulses.append((rise, c))
-                rise = None
+    for i, pulses in pin_pulses(trace, n_pins).items():
         group: list[tuple[int, int]] = []
         for r, f in pulses:
             onset = bool(len(rises)) and int(np.min(np.abs(rises - r))) <= 64

@@ -209,17 +209,29 @@ class LiveRecord:
                 return Schedule.model_validate(p["schedule"])
         raise KeyError(frame)
 
-    def states(self) -> list[tuple[float, dict[Actuator, Drive]]]:
-        """(host ms from the start, state of the array) after each frame of outputs."""
-        return [(float(t), parse_state(s if isinstance(s, str) else ""))
-                for t, s in zip(self.outputs["t_host_ms"], self.outputs["outputs"])]
+    def states(self, clock: str = "host") -> list[tuple[float, dict[Actuator, Drive]]]:
+        """(ms, state of the array) after each frame of outputs: ms from the start on the
+        host's clock, or with ``clock="device"`` the device-reported time at which the
+        outputs changed (on the device's own clock; rows the device reported no time
+        for are left out)."""
+        column = {"host": "t_host_ms", "device": "t_device_ms"}[clock]
+        out = []
+        for t, s in zip(self.outputs[column], self.outputs["outputs"]):
+            try:
+                t = float(t)
+            except (TypeError, ValueError):
+                continue
+            if t == t:                                  # not NaN
+                out.append((t, parse_state(s if isinstance(s, str) else "")))
+        return out
 
-    def changes(self) -> list[tuple[float, Actuator, Drive | None]]:
-        """Every output change, ``(host ms, actuator, drive or None for off)``: what the
-        array did, for :func:`vtexp.safety.outputs_schedule` to audit."""
+    def changes(self, clock: str = "host") -> list[tuple[float, Actuator, Drive | None]]:
+        """Every output change, ``(ms, actuator, drive or None for off)`` on that clock
+        (:meth:`states`): what the array did, for
+        :func:`vtexp.safety.outputs_schedule` to audit."""
         out: list[tuple[float, Actuator, Drive | None]] = []
         prev: dict[Actuator, Drive] = {}
-        for t, state in self.states():
+        for t, state in self.states(clock):
             out.extend((t, k, state.get(k)) for k in sorted(prev.keys() | state.keys())
                        if prev.get(k) != state.get(k))
             prev = state

@@ -13,8 +13,9 @@
  * Amplitude: each pin's gate MOSFET switches the output of its own linear stage,
  * set by one DAC channel (pin i: chip i / 8, channel i % 8; full scale =
  * VT_FULL_SCALE_MV at the pin). A channel is written when its amplitude changes:
- * ahead of the commit if the pin is idle, or at the tick before it if a train still
- * runs on it (its last 100 us may then carry the new amplitude).
+ * ahead of the commit if the pin is idle, or by the commit's tick once the next tick is
+ * prepared if a train still runs on it (the new train's first pulse may begin at the
+ * old amplitude).
  *
  * LTC2656 word (32 bits for a daisy chain): 8 don't-care bits, command C3-C0,
  * address A3-A0, 12-bit code, 4 don't-care bits; command 0011 writes and updates
@@ -43,20 +44,41 @@ typedef struct {
     uint32_t q;              /* period: q + r / f us */
     uint16_t r, f, acc, w;
     uint8_t on, high;
+    uint8_t port, mask;      /* its gate: bit mask of byte port of the gate bytes */
+    uint8_t wt, wrem;        /* the width: wt ticks, the last holding wrem us (1..tick) */
+    uint8_t fall_slot;       /* the fall ring's slot of the pulse it is in */
 } pin_t;
 
 typedef struct {
     vt_setting s;
     uint32_t q;              /* 10^8 / f and its remainder, divided out of the interrupt */
     uint16_t r;
+    uint8_t wt, wrem;
 } staged_t;
+
+/* The fall ring: each pulse, when it rises, also writes its fall into the slot of the
+ * tick it is due at, and the tick interrupt applies that slot itself before anything
+ * else. A preparation that runs late (the next tick came first) delays edges by a tick;
+ * with the ring, no pulse is ever longer for it: its fall happens on time, and the pin
+ * is held off until a preparation has seen it fall. */
+#define FALL_SLOTS 32
+#define FALL_MASK (FALL_SLOTS - 1)
+_Static_assert((VT_MAX_WIDTH_US + VT_TICK_US - 1) / VT_TICK_US + 2 <= FALL_SLOTS,
+               "profile " VT_PROFILE_NAME ": a pulse longer than the fall ring");
+_Static_assert(VT_TICK_US <= 255, "the last tick of a width is counted in a byte");
 
 static pin_t pins[N];
 static staged_t staged[N];
 static uint32_t staged_mask;
 static uint8_t staged_list[N], n_staged;     /* pins in the set being staged */
-static uint8_t act[N], n_act;                 /* pins with a train, for the tick to visit */
+static pin_t *act[N];                         /* pins with a train, for the tick to visit */
+static uint8_t n_act;
+static pin_t *fell[N];                        /* pins a preparation turned off */
+static uint8_t n_fell;
 static uint8_t g_now[4];                      /* gates as the tick has prepared them */
+static volatile uint8_t fall_ring[FALL_SLOTS][4];
+static volatile uint8_t held_off[4];          /* fallen by the ring, not yet by a preparation */
+static volatile uint8_t off_count;            /* times everything went off: seen mid-preparation */
 static uint16_t dac_code[N];          /* what each channel holds */
 static uint16_t dac_want[N];          /* what the committed set needs */
 
@@ -69,6 +91,7 @@ static volatile uint8_t commit_state, commit_onsets, pre_commit, pre_sync;
 static volatile uint32_t commit_tick;
 static volatile uint64_t commit_t;
 static volatile uint8_t preparing;   /* the tick interrupt is preparing the next tick */
+volatile uint16_t vt_late_ticks;     /* ticks that came while the previous one was preparing */
 
 static void gates(uint8_t a, uint8_t c, uint8_t l, uint8_t g)
 {
@@ -91,7 +114,8 @@ void vt_out_safe(void)
 static uint8_t dac_xfer[8 * DAC_XFER];          /* planned transfers, sent at the commit */
 static volatile uint8_t n_dac_xfer;
 
-_Static_assert(sizeof pins + sizeof staged + sizeof dac_code + sizeof dac_want + sizeof dac_xfer
+_Static_assert(sizeof pins + sizeof staged + sizeof dac_code + sizeof dac_want + sizeof act
+                       + sizeof fell + sizeof dac_xfer + sizeof fall_ring
                    <= VT_PORT_RAM_BYTES - 256 - 128 - 64,
                "profile " VT_PROFILE_NAME ": the train state exceeds the port's RAM budget");
 
@@ -165,6 +189,8 @@ void vt_out_init(void)
     SPSR = _BV(SPI2X);
     memset(pins, 0, sizeof pins);
     for (uint8_t i = 0; i < N; i++) {
+        pins[i].port = (uint8_t)(i >> 3);
+        pins[i].mask = (uint8_t)(1 << (i & 7));
         dac_code[i] = 0xFFFF;                 /* unknown: every channel is written once */
         dac_want[i] = 0;
     }
@@ -177,105 +203,169 @@ static uint16_t code_of(uint16_t mv)
     return c > 4095 ? 4095 : (uint16_t)c;
 }
 
+/* A train from t0. On a pin in the middle of a pulse, that pulse goes on and falls when
+ * it was to (its edge and fall slot stay): the new train's first pulse is the rest of it,
+ * the next rises at t0 + a period. A pulse never outlasts the width it rose with. */
 static void start_train(pin_t *p, const staged_t *st, uint32_t t0)
 {
     const vt_setting *s = &st->s;
+    uint8_t mid_pulse = p->on && p->high;
     p->on = 1;
-    p->high = 0;
     p->q = st->q;
     p->r = st->r;
     p->f = s->f;
     p->acc = 0;
     p->w = s->w;
+    p->wt = st->wt;
+    p->wrem = st->wrem;
     p->rise = t0;
-    p->edge = t0;                             /* the first pulse rises at once */
+    if (!mid_pulse) {
+        p->high = 0;
+        p->edge = t0;                         /* the first pulse rises at once */
+    }
 }
 
-/* Advance the pins whose edge is due by time t: the gates for that tick and the next edge.
- * Only pins with a train are visited, so a tick costs what is on, not the array. */
-static void advance(uint32_t t)
+/* Ticks from the tick at time t (that a pulse risen at rise <= t goes out at) to the
+ * tick its fall is due at: the first at or after rise + width, and at least the next. */
+static uint8_t fall_ticks(const pin_t *p, uint32_t t)
+{
+    uint32_t late = t - p->rise;
+    if (late < p->wrem)
+        return p->wt;                         /* the usual case: risen within this tick */
+    if (late < VT_TICK_US)
+        return p->wt > 1 ? (uint8_t)(p->wt - 1) : 1;
+    if (late >= p->w)
+        return 1;
+    uint16_t left = (uint16_t)(p->w - late);
+    uint8_t j = 0;
+    while (left > VT_TICK_US) {
+        left -= VT_TICK_US;
+        j++;
+    }
+    return (uint8_t)(j + 1);
+}
+
+/* Advance the pins whose edge is due by time t, the time of tick kt (its low byte): the
+ * gates for that tick, each rise's fall in the ring, and the next edge. Only pins with a
+ * train are visited, so a tick costs what is on, not the array. */
+static void advance(uint32_t t, uint8_t kt)
 {
     uint32_t soonest = t + 0x7FFFFFFFUL;
-    for (uint8_t k = 0; k < n_act; k++) {
-        uint8_t i = act[k];
-        pin_t *p = &pins[i];
-        if ((int32_t)(p->edge - t) <= 0) {
-            uint8_t m = (uint8_t)(1 << (i & 7));
+    pin_t **a = act, **end = act + n_act;
+    for (; a < end; a++) {
+        pin_t *p = *a;
+        uint32_t e = p->edge;
+        if ((int32_t)(e - t) <= 0) {
             if (p->high) {                    /* fall; the next pulse rises a period later */
                 p->high = 0;
-                g_now[i >> 3] &= (uint8_t)~m;
-                p->rise += p->q;
+                g_now[p->port] &= (uint8_t)~p->mask;
+                fell[n_fell++] = p;
+                uint32_t r = p->rise + p->q;
                 p->acc += p->r;
                 if (p->acc >= p->f) {
                     p->acc -= p->f;
-                    p->rise++;
+                    r++;
                 }
-                p->edge = p->rise;
+                p->rise = r;
+                e = r;
             } else {
                 p->high = 1;
-                g_now[i >> 3] |= m;
-                p->edge = p->rise + p->w;
+                g_now[p->port] |= p->mask;
+                e = p->rise + p->w;
+                uint8_t at = (uint8_t)(kt + fall_ticks(p, t));
+                p->fall_slot = at & FALL_MASK;
+                cli();
+                if ((int8_t)(at - (uint8_t)vt_ticks) > 0)
+                    fall_ring[at & FALL_MASK][p->port] |= p->mask;
+                else                          /* this preparation is so late that the
+                                               * fall is past: the pulse never starts */
+                    held_off[p->port] |= p->mask;
+                sei();
             }
+            p->edge = e;
         }
-        if ((int32_t)(p->edge - soonest) < 0)
-            soonest = p->edge;
+        if ((int32_t)(e - soonest) < 0)
+            soonest = e;
     }
-    out_a = g_now[0];
-    out_c = g_now[1];
-    out_l = g_now[2];
-    out_g = g_now[3];
     next_edge = soonest;
     any_on = n_act != 0;
 }
 
-static void pin_off(uint8_t i)
+static void pin_off(pin_t *p)
 {
-    if (!pins[i].on)
+    if (!p->on)
         return;
-    pins[i].on = pins[i].high = 0;
-    g_now[i >> 3] &= (uint8_t)~(1 << (i & 7));
+    if (p->high)
+        fell[n_fell++] = p;                   /* its fall slot is cleared with the others */
+    p->on = p->high = 0;
+    g_now[p->port] &= (uint8_t)~p->mask;
     for (uint8_t k = 0; k < n_act; k++)
-        if (act[k] == i) {
+        if (act[k] == p) {
             act[k] = act[--n_act];
             break;
         }
 }
 
+static void gates_forgotten(void)
+{
+    g_now[0] = g_now[1] = g_now[2] = g_now[3] = 0;
+    out_a = out_c = out_l = out_g = 0;
+    held_off[0] = held_off[1] = held_off[2] = held_off[3] = 0;
+    any_on = 0;
+    n_act = 0;
+}
+
+/* Every pin off and forgotten, interrupts off: a pin in a pulse has one fall in the ring,
+ * at its fall slot (those a preparation turned off are cleared when it ends), so only
+ * the pins with a train are visited. */
 static void all_pins_off(void)
+{
+    for (uint8_t k = 0; k < n_act; k++) {
+        pin_t *p = act[k];
+        if (p->high)
+            fall_ring[p->fall_slot][p->port] &= (uint8_t)~p->mask;
+        p->on = p->high = 0;
+    }
+    gates_forgotten();
+    off_count++;
+}
+
+/* The same, whatever state a preparation cut short by it left (interrupts off). */
+static void all_pins_wiped(void)
 {
     for (uint8_t i = 0; i < N; i++)
         pins[i].on = pins[i].high = 0;
-    n_act = 0;
-    g_now[0] = g_now[1] = g_now[2] = g_now[3] = 0;
-    out_a = out_c = out_l = out_g = 0;
-    any_on = 0;
+    memset((void *)fall_ring, 0, sizeof fall_ring);
+    gates_forgotten();
 }
 
 void vt_out_tick(void)
 {
+    /* the falls due at this tick, from the ring, whatever the preparation did */
+    volatile uint8_t *f = fall_ring[(uint8_t)(*(volatile uint8_t *)&vt_ticks + 1) & FALL_MASK];
+    uint8_t h0 = held_off[0] | f[0], h1 = held_off[1] | f[1], h2 = held_off[2] | f[2],
+            h3 = held_off[3] | f[3];
     uint8_t pb = PORTB & (uint8_t)~_BV(SYNC_BIT);
     if (pre_sync)
         pb |= _BV(SYNC_BIT);
-    gates(out_a, out_c, out_l, out_g);        /* the edges of this tick, in one instant */
+    gates(out_a & (uint8_t)~h0, out_c & (uint8_t)~h1, out_l & (uint8_t)~h2,
+          out_g & (uint8_t)~h3);              /* the edges of this tick, in one instant */
     uint16_t c = TCNT1;                       /* when, in 0.5 us counts after the tick */
     PORTB = pb;
+    held_off[0] = h0;
+    held_off[1] = h1;
+    held_off[2] = h2;
+    held_off[3] = h3;
+    f[0] = f[1] = f[2] = f[3] = 0;
     uint32_t k = vt_clock_tick();
-    uint8_t applied = pre_commit;
+    uint8_t n_xfer = 0;
     if (pre_commit) {
         pre_commit = 0;
         commit_t = vt_clock_now_at(c);
         commit_state = DONE;
         vt_out_event = 1;
-    }
-    if (applied && n_dac_xfer) {
-        /* The amplitudes of trains that replace a running one on their pin: sent after
-         * this tick's edges (the first ~35 us per transfer of the new train's first pulse
-         * carry the old amplitude), not before (that would touch the old train). */
-        uint8_t n = n_dac_xfer;
+        n_xfer = n_dac_xfer;                  /* sent below, once the next tick is prepared */
         n_dac_xfer = 0;
-        sei();
-        dac_send(dac_xfer, n);
-        cli();
     }
     if (vt_deadline_armed && (int32_t)(k - vt_deadline_tick) >= 0) {
         gates(0, 0, 0, 0);                    /* the host is gone: every pin off now */
@@ -283,34 +373,66 @@ void vt_out_tick(void)
         vt_out_event = 1;
         all_pins_off();
     }
-    if (preparing)
+    if (preparing) {
+        if (vt_late_ticks != 0xFFFF)
+            vt_late_ticks++;
         return;                               /* the previous tick is still preparing: this
                                                * tick's work (a set due, edges) is done at
                                                * the next, late rather than lost */
+    }
     preparing = 1;
+    uint8_t offs = off_count;
+    n_fell = 0;
     sei();
     /* The next tick: a committed set starts there, and edges due by then happen there. */
     uint32_t t_next = vt_tick_us_lo + VT_TICK_US;             /* us, wrapping */
     uint8_t commit = commit_state == SCHEDULED && (int32_t)(commit_tick - (k + 1)) <= 0;
     if (commit) {
-        for (uint8_t k = 0; k < n_staged; k++) {
-            uint8_t i = staged_list[k];
+        for (uint8_t j = 0; j < n_staged; j++) {
+            uint8_t i = staged_list[j];
+            pin_t *p = &pins[i];
             if (!staged[i].s.a) {
-                pin_off(i);
+                pin_off(p);
                 continue;
             }
-            if (!pins[i].on)
-                act[n_act++] = i;
-            start_train(&pins[i], &staged[i], t_next);
+            if (!p->on)
+                act[n_act++] = p;
+            start_train(p, &staged[i], t_next);
         }
-        advance(t_next);
+        advance(t_next, (uint8_t)(k + 1));
     } else if (any_on && (int32_t)(next_edge - t_next) <= 0) {
-        advance(t_next);
+        advance(t_next, (uint8_t)(k + 1));
     }
     cli();
+    if (off_count != offs) {
+        all_pins_wiped();                     /* the watchdog fired meanwhile: it stands */
+        commit = 0;
+    } else {
+        out_a = g_now[0];
+        out_c = g_now[1];
+        out_l = g_now[2];
+        out_g = g_now[3];
+        /* what this preparation turned off is off in the gates it leaves: the ring and
+         * the hold have nothing more to do for those pins */
+        for (uint8_t j = 0; j < n_fell; j++) {
+            pin_t *p = fell[j];
+            uint8_t m = (uint8_t)~p->mask;
+            fall_ring[p->fall_slot][p->port] &= m;
+            held_off[p->port] &= m;
+        }
+    }
     pre_commit = commit;
     pre_sync = commit && commit_onsets;
     preparing = 0;
+    if (n_xfer) {
+        /* The amplitudes of trains that replace a running one on their pin: sent after
+         * this tick's edges (that would touch the old train) and after the next tick is
+         * prepared (a transfer takes ~35 us, up to 8 of them: ticks that come meanwhile
+         * find their edges ready). */
+        sei();
+        dac_send(dac_xfer, n_xfer);
+        cli();
+    }
 }
 
 void vt_hal_stage_begin(void)
@@ -328,6 +450,9 @@ void vt_hal_stage(uint16_t index, const vt_setting *s)
     if (s->a) {                               /* 32-bit divisions: here, not in the tick */
         st->q = 100000000UL / s->f;
         st->r = (uint16_t)(100000000UL % s->f);
+        uint16_t wt = (uint16_t)((s->w + VT_TICK_US - 1) / VT_TICK_US);
+        st->wt = (uint8_t)wt;
+        st->wrem = (uint8_t)(s->w - (wt - 1) * VT_TICK_US);
     }
     if (!(staged_mask & (1UL << index)))
         staged_list[n_staged++] = (uint8_t)index;
@@ -404,7 +529,26 @@ void vt_hal_all_off(void)
     commit_state = NONE;
     pre_commit = 0;
     pre_sync = 0;
-    all_pins_off();
+    uint8_t n = n_act;
+    n_act = 0;                                /* the ticks have nothing to visit or drive */
+    any_on = 0;
+    out_a = out_c = out_l = out_g = 0;
+    off_count++;
+    sei();
+    /* the pins forgotten with interrupts on, but for each one's slot in the ring (a tick
+     * empties its slot: both must not write it at once) */
+    for (uint8_t k = 0; k < n; k++) {
+        pin_t *p = act[k];
+        if (p->high) {
+            cli();
+            fall_ring[p->fall_slot][p->port] &= (uint8_t)~p->mask;
+            sei();
+        }
+        p->on = p->high = 0;
+    }
+    g_now[0] = g_now[1] = g_now[2] = g_now[3] = 0;
+    cli();
+    held_off[0] = held_off[1] = held_off[2] = held_off[3] = 0;
     sei();
 }
 
