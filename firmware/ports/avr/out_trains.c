@@ -533,6 +533,7 @@ void vt_hal_all_off(void)
     n_act = 0;                                /* the ticks have nothing to visit or drive */
     any_on = 0;
     out_a = out_c = out_l = out_g = 0;
+    g_now[0] = g_now[1] = g_now[2] = g_now[3] = 0;   /* what a tick's preparation leaves */
     off_count++;
     sei();
     /* the pins forgotten with interrupts on, but for each one's slot in the ring (a tick
@@ -546,7 +547,6 @@ void vt_hal_all_off(void)
         }
         p->on = p->high = 0;
     }
-    g_now[0] = g_now[1] = g_now[2] = g_now[3] = 0;
     cli();
     held_off[0] = held_off[1] = held_off[2] = held_off[3] = 0;
     sei();
