@@ -47,6 +47,7 @@ typedef struct {
     uint8_t port, mask;      /* its gate: bit mask of byte port of the gate bytes */
     uint8_t wt, wrem;        /* the width: wt ticks, the last holding wrem us (1..tick) */
     uint8_t fall_slot;       /* the fall ring's slot of the pulse it is in */
+    uint8_t fresh;           /* its train started with a pulse of its own (not mid-pulse) */
 } pin_t;
 
 typedef struct {
@@ -219,6 +220,7 @@ static void start_train(pin_t *p, const staged_t *st, uint32_t t0)
     p->wt = st->wt;
     p->wrem = st->wrem;
     p->rise = t0;
+    p->fresh = !mid_pulse;
     if (!mid_pulse) {
         p->high = 0;
         p->edge = t0;                         /* the first pulse rises at once */
@@ -404,10 +406,12 @@ void vt_out_tick(void)
         advance(t_next, (uint8_t)(k + 1));
     }
     cli();
+    uint8_t late = 0;
     if (off_count != offs) {
         all_pins_wiped();                     /* the watchdog fired meanwhile: it stands */
         commit = 0;
     } else {
+        late = (uint8_t)((uint8_t)vt_ticks - (uint8_t)k);   /* ticks that came meanwhile */
         out_a = g_now[0];
         out_c = g_now[1];
         out_l = g_now[2];
@@ -423,6 +427,32 @@ void vt_out_tick(void)
     }
     pre_commit = commit;
     pre_sync = commit && commit_onsets;
+    if (commit && late) {
+        /* The set goes out that many ticks late, and is reported then: its trains are
+         * timed from then, and a first pulse keeps its whole width (its fall moves
+         * too). No preparation runs meanwhile; a tick that would empty a fall's slot
+         * first only ends that pulse sooner. */
+        uint32_t late_us = (uint32_t)late * VT_TICK_US;
+        sei();
+        for (uint8_t j = 0; j < n_staged; j++) {
+            pin_t *p = &pins[staged_list[j]];
+            if (!p->on)
+                continue;
+            p->rise += late_us;
+            if (p->fresh && p->high) {
+                p->edge += late_us;
+                cli();
+                volatile uint8_t *slot = &fall_ring[p->fall_slot][p->port];
+                if (*slot & p->mask) {
+                    *slot &= (uint8_t)~p->mask;
+                    p->fall_slot = (uint8_t)(p->fall_slot + late) & FALL_MASK;
+                    fall_ring[p->fall_slot][p->port] |= p->mask;
+                }
+                sei();
+            }
+        }
+        cli();
+    }
     preparing = 0;
     if (n_xfer) {
         /* The amplitudes of trains that replace a running one on their pin: sent after
