@@ -189,6 +189,11 @@ class _Pending:
     old: Program | None
     old_epoch: float | None
 
+    def before(self, now: float) -> dict[Actuator, Drive]:
+        """What would play at ``now`` without the change."""
+        old = self.old
+        return old.state_at(old.phase(now, self.old_epoch)) if old is not None else {}
+
 
 class LiveRun:
     """A live run (module docstring). ``sinks`` are called with each event the run
@@ -384,10 +389,8 @@ class LiveRun:
             elif self.encoder.setup.follow == "change":
                 # from the cycle playing, to a place where the array will change to what
                 # would not have played without the change(s) not yet felt
-                first = pending.old
-                before = first.state_at(first.phase(now, pending.old_epoch)) \
-                    if first is not None else {}
-                self.epoch = change_epoch(now, old, self.epoch, new, self._applied, before)
+                self.epoch = change_epoch(now, old, self.epoch, new, self._applied,
+                                          pending.before(now))
             else:
                 self.epoch = carried_epoch(now, old, self.epoch, new)
             self.program = new
@@ -427,8 +430,7 @@ class LiveRun:
         resolved = None
         prev, self._applied = self._applied, rep.applied
         if pending is not None:
-            old = pending.old
-            before = old.state_at(old.phase(now, pending.old_epoch)) if old is not None else {}
+            before = pending.before(now)
             now_on = rep.applied
             asked = [k for k in desired.keys() | before.keys() if desired.get(k) != before.get(k)]
             # Felt: an output that the change asks to differ was changed, to what it asks.

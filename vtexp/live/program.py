@@ -32,7 +32,7 @@ import bisect
 import math
 from dataclasses import dataclass, field
 
-from ..model import Pattern, Schedule
+from ..model import Pattern, PulseTrain, Schedule
 from ..safety import Actuator, Drive
 
 
@@ -155,9 +155,12 @@ def signature(schedule: Schedule, cycle_ms: float) -> tuple:
     """What makes two cycles the same (a frame that changed nothing keeps the program)."""
     return (round(cycle_ms, 6),) + tuple(
         (p.row, p.col, round(p.onset_ms, 6), round(p.duration_ms, 6), p.level,
-         None if p.train is None else (p.train.amplitude_v, p.train.frequency_hz,
-                                       p.train.pulse_width_ms))
+         None if p.train is None else _train_key(p.train))
         for p in schedule.pulses)
+
+
+def _train_key(train: PulseTrain) -> tuple:
+    return (train.amplitude_v, train.frequency_hz, train.pulse_width_ms)
 
 
 def carried_epoch(now_s: float, old: Program | None, old_epoch: float | None,
@@ -219,6 +222,5 @@ def change_epoch(now_s: float, old: Program | None, old_epoch: float | None,
 
 
 def _state_key(state: dict[Actuator, Drive]) -> tuple:
-    return tuple((k, d if isinstance(d, int) else
-                  (d.amplitude_v, d.frequency_hz, d.pulse_width_ms))
+    return tuple((k, d if isinstance(d, int) else _train_key(d))
                  for k, d in sorted(state.items()))
