@@ -359,7 +359,8 @@ class DeviceBase:
             self._check_stop()
 
 
-def stream_watchdog_limit_ms(profile: DeviceProfile, checkin_ms: float = 50.0) -> int:
+def stream_watchdog_limit_ms(profile: DeviceProfile,
+                             checkin_ms: float = DeviceBase.stream_checkin_ms) -> int:
     """The longest device watchdog (ms, whole tens) with which ``profile`` can be streamed:
     the guard cuts trains the check-in period, the watchdog and 10 ms before
     ``max_on_ms`` (:meth:`DeviceBase._stream_margin`), and that margin may be at most half

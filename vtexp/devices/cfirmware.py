@@ -116,14 +116,12 @@ def elf_path(profile: str) -> Path:
     return out / "avr" / profile / "vtexp-fw.elf"
 
 
-def symbol(elf: Path, name: str) -> int:
-    """The data address of a symbol of the firmware (for the harness's stack and peeks)."""
+def symbols(elf: Path) -> dict[str, int]:
+    """The data addresses of the firmware's symbols, by name (for the harness's stack and
+    peeks)."""
     r = subprocess.run(["avr-nm", str(elf)], capture_output=True, text=True, check=True)
-    for line in r.stdout.splitlines():
-        parts = line.split()
-        if len(parts) == 3 and parts[2] == name:
-            return int(parts[0], 16) & 0xFFFF
-    raise KeyError(name)
+    return {parts[2]: int(parts[0], 16) & 0xFFFF
+            for parts in (line.split() for line in r.stdout.splitlines()) if len(parts) == 3}
 
 
 def config_for(profile: DeviceProfile) -> FirmwareConfig:
@@ -248,13 +246,14 @@ class AvrSimulator(_Process):
                 str(faults[2]), "--seed", str(seed)]
         self._watch: dict[int, tuple[str, int]] = {}
         try:
-            argv += ["--stack-from", hex(symbol(self.elf, "__bss_end"))]
-        except (KeyError, OSError, subprocess.CalledProcessError):
-            pass
+            table = symbols(self.elf)
+        except (OSError, subprocess.CalledProcessError):
+            table = {}
+        if "__bss_end" in table:
+            argv += ["--stack-from", hex(table["__bss_end"])]
         for name, size in self.WATCH.items():
-            try:
-                addr = symbol(self.elf, name)
-            except (KeyError, OSError, subprocess.CalledProcessError):
+            addr = table.get(name)
+            if addr is None:
                 continue                      # not in this build (a port's own counter)
             self._watch[addr] = (name, size)
             argv += ["--peek", f"{addr:#x}:{size}"]
