@@ -13,9 +13,8 @@
  * Amplitude: each pin's gate MOSFET switches the output of its own linear stage,
  * set by one DAC channel (pin i: chip i / 8, channel i % 8; full scale =
  * VT_FULL_SCALE_MV at the pin). A channel is written when its amplitude changes:
- * ahead of the commit if the pin is idle, or by the commit's tick once the next tick is
- * prepared if a train still runs on it (the new train's first pulse may begin at the
- * old amplitude).
+ * ahead of the commit if the pin is idle, or at the commit's tick, after its edges, if a
+ * train still runs on it (the new train's first pulse begins at the old amplitude).
  *
  * LTC2656 word (32 bits for a daisy chain): 8 don't-care bits, command C3-C0,
  * address A3-A0, 12-bit code, 4 don't-care bits; command 0011 writes and updates
@@ -360,14 +359,25 @@ void vt_out_tick(void)
     held_off[3] = h3;
     f[0] = f[1] = f[2] = f[3] = 0;
     uint32_t k = vt_clock_tick();
-    uint8_t n_xfer = 0;
     if (pre_commit) {
         pre_commit = 0;
         commit_t = vt_clock_now_at(c);
         commit_state = DONE;
         vt_out_event = 1;
-        n_xfer = n_dac_xfer;                  /* sent below, once the next tick is prepared */
-        n_dac_xfer = 0;
+        if (n_dac_xfer) {
+            /* The amplitudes of trains that replace a running one on their pin: sent
+             * after this tick's edges (the first ~35 us per transfer of the new train's
+             * first pulse carry the old amplitude), not before (that would touch the old
+             * train). A tick that comes meanwhile finds the next not yet prepared: its
+             * edges go out a tick late (the fall ring keeps its falls on time). */
+            uint8_t n = n_dac_xfer;
+            n_dac_xfer = 0;
+            sei();
+            dac_send(dac_xfer, n);
+            cli();
+            if (vt_ticks != k)
+                return;                       /* a tick came meanwhile and did the rest */
+        }
     }
     if (vt_deadline_armed && (int32_t)(k - vt_deadline_tick) >= 0) {
         gates(0, 0, 0, 0);                    /* the host is gone: every pin off now */
@@ -454,15 +464,6 @@ void vt_out_tick(void)
         cli();
     }
     preparing = 0;
-    if (n_xfer) {
-        /* The amplitudes of trains that replace a running one on their pin: sent after
-         * this tick's edges (that would touch the old train) and after the next tick is
-         * prepared (a transfer takes ~35 us, up to 8 of them: ticks that come meanwhile
-         * find their edges ready). */
-        sei();
-        dac_send(dac_xfer, n_xfer);
-        cli();
-    }
 }
 
 void vt_hal_stage_begin(void)
