@@ -26,7 +26,7 @@ def test_play_reports_onsets_and_advances_the_virtual_clock():
         info = dev.info()
         assert (info.backend, info.rows, info.cols) == ("sim", 8, 6)
         a = dev.play(schedule())
-        dev.wait(1000)
+        dev.wait_ms(1000)
         b = dev.play(schedule())
     assert a.started_at_ms == 0 and a.duration_ms == 300
     assert [(p.row, p.col, p.onset_ms) for p in a.pulses] == [(0, 0, 0), (0, 1, 100)]

@@ -215,12 +215,12 @@ def test_escape_pressed_between_two_trials_aborts_at_the_next_screen(tmp_path, m
         return scripted(keyList=keyList, modifiers=modifiers, timeStamped=timeStamped)
     monkeypatch.setattr(event, "getKeys", get_keys)
     monkeypatch.setattr(event, "clearEvents", lambda *a, **k: pending.clear())
-    wait = SimDevice.wait
+    wait = SimDevice.wait_ms
 
     def iti(self, ms):                       # the participant presses escape in the pause
         pending.extend(["x", "escape"])
         wait(self, ms)
-    monkeypatch.setattr(SimDevice, "wait", iti)
+    monkeypatch.setattr(SimDevice, "wait_ms", iti)
     with pytest.raises(SessionAborted, match="escape"):
         run(lx, tmp_path, r)
     d = tmp_path / "data" / "mini" / "sub-01" / "ses-1"

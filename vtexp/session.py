@@ -542,9 +542,6 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
         for sink in sinks:
             call_hook(sink, hook, *args)
 
-    was_listening = getattr(device, "on_play_started", None)
-    device.on_play_started = lambda device_ms, host_ms: notify("play_started", device_ms,
-                                                                host_ms)
     try:
         notify("session_started", {"experiment": exp.name, "participant": participant,
                                    "session": session, "resume": resume, "trials_done": done})
@@ -594,7 +591,7 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
                 for sink in sinks:
                     sink(rec, trial, len(trials))
             notify("trial_logged", trial, recs, plays)
-            _wait(device, exp.design.iti_ms)
+            device.wait_ms(exp.design.iti_ms)
             _maybe_break(exp, trial, trials, responder)
         call_hook(responder, "finish", "Thank you. The session is over.")
         status = "completed"
@@ -608,7 +605,6 @@ def run_session(lx: LoadedExperiment, participant: str, session: int, device: De
         status, reason = "failed", f"{type(e).__name__}: {e}"
         raise
     finally:
-        device.on_play_started = was_listening
         try:
             device.all_off()
         finally:
@@ -1092,7 +1088,8 @@ def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder,
         # The responder's abort key is read while the stimulus plays: the device
         # turns every actuator off at once and raises SessionAborted.
         try:
-            return device.play(schedule, should_stop=stop)
+            return device.play(schedule, should_stop=stop, on_started=lambda device_ms, host_ms:
+                               notify("play_started", device_ms, host_ms))
         except SessionAborted:
             call_hook(responder, "stimulus_stopped", trial)
             raise
@@ -1126,14 +1123,6 @@ def _run_trial(exp, trial: Trial, device: DeviceBase, responder: Responder,
             stimulus_duration_ms=plays[0].duration_ms, n_pulses=len(plays[0].pulses),
             started_at=started))
     return records, plays
-
-
-def _wait(device: DeviceBase, ms: float) -> None:
-    wait = getattr(device, "wait", None)
-    if wait is not None:
-        wait(ms)
-    elif ms > 0:
-        time.sleep(ms / 1000.0)
 
 
 @dataclass

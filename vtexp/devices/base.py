@@ -2,19 +2,24 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 from typing_extensions import Self
 
+from ..clock import REAL, Clock
 from ..errors import InputError, SessionAborted
 from ..model import DeviceInfo, DeviceProfile, PlayReport, Schedule
 from ..safety import Actuator, Degradation, Drive, StreamGuard, check_schedule, cooling_wait_ms
 
 #: ``play``'s ``should_stop``: true (or a reason, as text) stops the play.
 StopPoll = Callable[[], bool | str | None]
+
+#: ``play``'s ``on_started``: called as the play starts, with its start on the device's
+#: clock (ms) and on the host's (the device's :class:`~vtexp.clock.Clock`, ms; None when
+#: not known): a trigger box sends its code then.
+PlayStarted = Callable[[float, float | None], None]
 
 #: How often a play polls ``should_stop`` while it waits, seconds.
 STOP_POLL_S = 0.005
@@ -28,8 +33,8 @@ class StreamReport:
     after :class:`~vtexp.safety.StreamGuard`; ``changed``: how many outputs that
     changed; ``t_device_ms``: when the change took effect, on the device's clock
     as the device reported it (None when nothing changed); ``host_before_ms`` and
-    ``host_after_ms``: ``time.monotonic()`` in ms just before sending and once the
-    device confirmed, which bracket ``t_device_ms`` (to map the device's clock onto
+    ``host_after_ms``: the device's clock (:class:`~vtexp.clock.Clock`) in ms just before
+    sending and once the device confirmed, which bracket ``t_device_ms`` (to map the device's clock onto
     the host's); ``degradations``: what the guard left out, and why.
     """
 
@@ -59,17 +64,25 @@ class Device(Protocol):
     to be played; when it returns true, every actuator is turned off at once and
     ``play`` raises :class:`~vtexp.errors.SessionAborted` (with ``f``'s return
     value as the reason when that is text). A backend that does not wait (the
-    virtual-clock ``sim``) calls it only before the play.
+    virtual-clock ``sim``) calls it only before the play. ``on_started(device_ms,
+    host_ms)`` is called as the play starts (:data:`PlayStarted`).
+
+    ``wait_ms(ms)`` lets ``ms`` pass with nothing played (the pause between trials),
+    on the device's clock (``clock``: a :class:`~vtexp.clock.Clock`, the real one
+    unless another was given).
     """
 
     profile: DeviceProfile
+    clock: Clock
 
     def open(self) -> DeviceInfo: ...
 
     def info(self) -> DeviceInfo: ...
 
-    def play(self, schedule: Schedule, *, should_stop: StopPoll | None = None
-             ) -> PlayReport: ...
+    def play(self, schedule: Schedule, *, should_stop: StopPoll | None = None,
+             on_started: PlayStarted | None = None) -> PlayReport: ...
+
+    def wait_ms(self, ms: float) -> None: ...
 
     def all_off(self) -> None: ...
 
@@ -96,8 +109,9 @@ class DeviceBase:
 
     backend = "base"
 
-    def __init__(self, profile: DeviceProfile):
+    def __init__(self, profile: DeviceProfile, clock: Clock = REAL):
         self.profile = profile
+        self.clock = clock
         self._info: DeviceInfo | None = None
         self._last_off_ms: dict[tuple[int, int], float] = {}
         self._should_stop: StopPoll | None = None
@@ -105,10 +119,7 @@ class DeviceBase:
         self._stream_state: dict[Actuator, Drive] = {}
         self._streaming = False
         self._alive_at = 0.0
-        #: Called as a play starts, with its start on the device's clock (ms) and on the
-        #: host's ``time.monotonic`` clock (ms, or None): a trigger box sends its code
-        #: then. Backends call :meth:`_play_started`.
-        self.on_play_started: Callable[[float, float | None], None] | None = None
+        self._on_started: PlayStarted | None = None
 
     # -- public API -------------------------------------------------------------------------
     def open(self) -> DeviceInfo:
@@ -119,12 +130,14 @@ class DeviceBase:
     def info(self) -> DeviceInfo:
         return self.open()
 
-    def play(self, schedule: Schedule, *, should_stop: StopPoll | None = None) -> PlayReport:
+    def play(self, schedule: Schedule, *, should_stop: StopPoll | None = None,
+             on_started: PlayStarted | None = None) -> PlayReport:
         check_schedule(schedule, self.profile)
         self.open()
         if self._streaming:
             self.all_off()              # a stream ends before a play starts
         self._should_stop = should_stop
+        self._on_started = on_started
         try:
             rest = cooling_wait_ms(schedule, self.profile, self._last_off_ms, self._now_ms())
             if rest > 0:
@@ -140,12 +153,19 @@ class DeviceBase:
                 raise
         finally:
             self._should_stop = None
+            self._on_started = None
         self._mark_off(schedule)
         return report
 
+    def wait_ms(self, ms: float) -> None:
+        """Let ``ms`` pass with nothing played (a pause between trials)."""
+        if ms > 0:
+            self._rest(ms)
+
     def _play_started(self, device_ms: float, host_ms: float | None) -> None:
-        if self.on_play_started is not None:
-            self.on_play_started(device_ms, host_ms)
+        """Backends call this as a play starts; it tells ``play``'s ``on_started``."""
+        if self._on_started is not None:
+            self._on_started(device_ms, host_ms)
 
     def _mark_off(self, schedule: Schedule) -> None:
         # Stamped when play returns, which is no earlier than the last pulse ended:
@@ -203,7 +223,7 @@ class DeviceBase:
 
     def stream_alive(self) -> None:
         """The stream's loop checks in without sending anything (nothing changed)."""
-        self._alive_at = time.monotonic()
+        self._alive_at = self.clock.now()
         self._stream_checked_in()
 
     def stream(self, frame: Mapping[Actuator, Drive], *, full: bool = False) -> StreamReport:
@@ -237,7 +257,7 @@ class DeviceBase:
                     + (f": --device {spec}" if spec else ""), key="--device")
             self._guard = StreamGuard(self.profile, self._last_off_ms, margin_ms=margin)
         if not self._streaming:
-            self._alive_at = time.monotonic()
+            self._alive_at = self.clock.now()
             self._streaming = True
             self._stream_started()
         try:
@@ -251,7 +271,7 @@ class DeviceBase:
         old = self._stream_state
         changes = {k: allowed.get(k) for k in old.keys() | allowed.keys()
                    if old.get(k) != allowed.get(k)}
-        host_before = time.monotonic() * 1000.0
+        host_before = self.clock.now_ms()
         t_device = None
         if changes or full:
             try:
@@ -259,7 +279,7 @@ class DeviceBase:
             except BaseException:
                 self.all_off()          # ends the stream, marking every actuator off
                 raise
-        host_after = time.monotonic() * 1000.0
+        host_after = self.clock.now_ms()
         known = len(guard.overruns)
         guard.commit(allowed, before, self._now_ms())
         late = guard.overruns[known:]
@@ -328,7 +348,7 @@ class DeviceBase:
 
     def _now_ms(self) -> float:
         """The clock that cooling times are measured on."""
-        return time.monotonic() * 1000.0
+        return self.clock.now_ms()
 
     def _rest(self, ms: float) -> None:
         """Let ``ms`` pass with every actuator off."""
@@ -350,12 +370,13 @@ class DeviceBase:
 
     def _sleep(self, seconds: float) -> None:
         """Sleep, polling ``should_stop`` every :data:`STOP_POLL_S` during a play."""
-        end = time.monotonic() + seconds
+        clock = self.clock
+        end = clock.now() + seconds
         if self._should_stop is None:
-            time.sleep(max(0.0, seconds))
+            clock.sleep(seconds)
             return
-        while (left := end - time.monotonic()) > 0:
-            time.sleep(min(left, STOP_POLL_S))
+        while (left := end - clock.now()) > 0:
+            clock.sleep(min(left, STOP_POLL_S))
             self._check_stop()
 
 

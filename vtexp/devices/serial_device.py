@@ -217,7 +217,7 @@ class SerialDevice(DeviceBase):
         self._off = wire.OFF[self._drive]
         self._outputs: list[Setting] = [self._off] * (profile.rows * profile.cols)
         #: The device's clock on this computer's, from every heartbeat's ACK.
-        self.clock = DeviceClock()
+        self.clock_map = DeviceClock()
 
     # -- open / close -----------------------------------------------------------------------
     def _open(self) -> DeviceInfo:
@@ -243,8 +243,8 @@ class SerialDevice(DeviceBase):
                     retries=self.retries, on_event=self._on_event, trace=self.trace)
         self._link = link
         self._outputs = [self._off] * (self.profile.rows * self.profile.cols)
-        self.clock.reset()                  # a device opened again may have restarted its clock
-        link.clock_sample = self.clock.add
+        self.clock_map.reset()                  # a device opened again may have restarted its clock
+        link.clock_sample = self.clock_map.add
         link.start()
         try:
             self.hello = hello = self._handshake(link)
@@ -466,11 +466,11 @@ class SerialDevice(DeviceBase):
         st = _PlayState(pid, len(wp), [None] * len(wp))
         self._current = st
         self._check_stop()                  # stopped during the upload: nothing is played
-        if self.clock.age_ms() > self.clock.window_ms / 2:
+        if self.clock_map.age_ms() > self.clock_map.window_ms / 2:
             link.expect(wire.Heartbeat(), Ack)      # a fresh sample of the device's clock
         start_us = link.expect(Trigger(pid, 0), Ack).t_us
         st.triggered = True
-        self._play_started(start_us / 1000.0, self.clock.to_host_ms(start_us / 1000.0))
+        self._play_started(start_us / 1000.0, self.clock_map.to_host_ms(start_us / 1000.0))
         self._wait_done(link, st, schedule.duration_ms)
         if st.done is not None and st.done.reason != DoneReason.FINISHED:
             self._current = None
@@ -491,7 +491,7 @@ class SerialDevice(DeviceBase):
     def _report(self, start_us: int, schedule: Schedule, pulses: list[PlayedPulse]
                 ) -> PlayReport:
         """The report of a play, its start also on the host's clock (``devices.clock``)."""
-        off = self.clock.offset_ms()
+        off = self.clock_map.offset_ms()
         return PlayReport(device=self.profile.name, started_at_ms=start_us / 1000.0,
                           duration_ms=schedule.duration_ms, pulses=pulses,
                           started_at_host_ms=None if off is None else start_us / 1000.0 - off[0],
@@ -647,7 +647,7 @@ class SerialDevice(DeviceBase):
                 # says it best (each is sent at its time or later, never earlier)
                 implied = applied - round(t_ms * 1000)
                 if first_t_us is None:
-                    self._play_started(implied / 1000.0, self.clock.to_host_ms(implied / 1000.0))
+                    self._play_started(implied / 1000.0, self.clock_map.to_host_ms(implied / 1000.0))
                 first_t_us = implied if first_t_us is None else min(first_t_us, implied)
                 for i in starting:
                     onsets[i] = applied

@@ -8,8 +8,9 @@ switching ``state`` at each onset and offset, for demonstrations in front of
 people. In real time a play polls ``should_stop`` every few ms and, when it
 says stop, records how far it got (a ``stopped`` event) and turns all off.
 
-A live stream (``stream``) always takes real time: while it lasts the clock
-follows ``time.monotonic``, and each frame's changes are recorded (a ``frame``
+A live stream (``stream``) always takes the host's time (``clock``, a
+:class:`~vtexp.clock.Clock`, real unless another is given): while it lasts the
+device's clock follows it, and each frame's changes are recorded (a ``frame``
 event with ``{(row, col): drive or None}``) at the time they were applied. Like a
 device's firmware, it has a watchdog while it streams (``stream_watchdog``, ms):
 when the host's loop has not checked in for that long, everything went off then (a
@@ -18,11 +19,11 @@ when the host's loop has not checked in for that long, everything went off then 
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..clock import REAL, Clock
 from ..errors import DeviceError, SessionAborted
 from ..model import DeviceInfo, DeviceProfile, PlayedPulse, PlayReport, Pulse, Schedule
 from .base import DeviceBase
@@ -43,11 +44,12 @@ class SimDevice(DeviceBase):
     clock_ms: float = 0.0
     history: list[SimEvent] = field(default_factory=list)
     plays: list[PlayReport] = field(default_factory=list)
+    clock: Clock = REAL
 
     backend = "sim"
 
     def __post_init__(self) -> None:
-        DeviceBase.__init__(self, self.profile)
+        DeviceBase.__init__(self, self.profile, self.clock)
         # Drive level (or amplitude) of each actuator right now; all zero when idle.
         self.state = np.zeros((self.profile.rows, self.profile.cols), dtype=float)
         self._stream_mono: float | None = None
@@ -63,7 +65,7 @@ class SimDevice(DeviceBase):
         start = self.clock_ms
         # The virtual clock has no fixed relation to real time: a play starts, on the
         # host's clock, when it is asked for.
-        host_start = time.monotonic() * 1000.0
+        host_start = self.clock.now_ms()
         self._play_started(start, host_start)
         played = [PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
                               onset_ms=p.onset_ms, duration_ms=p.duration_ms,
@@ -81,26 +83,27 @@ class SimDevice(DeviceBase):
         return report
 
     def _drive_realtime(self, schedule: Schedule, t0: float) -> None:
-        """Take the schedule's real time from ``t0`` (``time.monotonic``), ``state``
+        """Take the schedule's real time from ``t0`` (the clock's seconds), ``state``
         following its pulses."""
         pulses = schedule.sorted()
         instants = sorted({p.onset_ms for p in pulses} | {p.offset_ms for p in pulses}
                           | {schedule.duration_ms})
         try:
             for t in instants:
-                self._sleep(t0 + t / 1000.0 - time.monotonic())
+                self._sleep(t0 + t / 1000.0 - self.clock.now())
                 self.state[:] = 0.0
                 for p in pulses:        # overlapping pulses: the latest started drives it
                     if p.onset_ms <= t < p.offset_ms:
                         self.state[p.row, p.col] = _drive(p)
         except SessionAborted:
-            elapsed = (time.monotonic() - t0) * 1000.0
+            elapsed = (self.clock.now() - t0) * 1000.0
             self.history.append(SimEvent(self.clock_ms, "stopped", elapsed))
             self.clock_ms += elapsed
             raise
 
-    def wait(self, ms: float) -> None:
-        """Let ``ms`` of virtual time pass (inter-trial intervals)."""
+    def wait_ms(self, ms: float) -> None:
+        """Let ``ms`` of the device's time pass (inter-trial intervals): real time too
+        with ``realtime``."""
         if ms > 0:
             self.history.append(SimEvent(self.clock_ms, "wait", ms))
             if self.realtime:
@@ -109,7 +112,7 @@ class SimDevice(DeviceBase):
 
     def _now_ms(self) -> float:
         if self._stream_mono is not None:       # streaming: the clock follows real time
-            t = time.monotonic()
+            t = self.clock.now()
             self.clock_ms += (t - self._stream_mono) * 1000.0
             self._stream_mono = t
         return self.clock_ms
@@ -118,7 +121,7 @@ class SimDevice(DeviceBase):
         return self.stream_watchdog
 
     def _stream_started(self) -> None:
-        self._stream_mono = time.monotonic()
+        self._stream_mono = self.clock.now()
         self._checkin_ms = self._now_ms()
 
     def _stream_stopped(self) -> None:
@@ -145,7 +148,7 @@ class SimDevice(DeviceBase):
         return t
 
     def _rest(self, ms: float) -> None:
-        self.wait(ms)
+        self.wait_ms(ms)
 
     def _all_off(self) -> None:
         self.state[:] = 0.0
