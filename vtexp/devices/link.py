@@ -3,7 +3,11 @@
 A :class:`Link` owns the port: a reader thread decodes frames (counting and
 dropping bad ones), hands replies to the one request in flight and events to
 a callback, and watches for silence; a heartbeat thread keeps the device's
-watchdog fed while the host is idle. Requests are stop-and-wait: one frame
+watchdog fed while the host is idle. Its time is a :class:`~vtexp.clock.Clock`'s.
+On a port that delivers its bytes itself (one with ``attach``: an in-process
+emulator's :class:`~vtexp.devices.emulator.LoopbackPort`, on a virtual clock) there
+are no threads: bytes are fed as they arrive, and the heartbeat and the watch for
+silence are timers on the clock; everything else is the same code. Requests are stop-and-wait: one frame
 in flight, answered by exactly one reply with the same sequence number,
 re-sent after a timeout or a ``NAK BAD_FRAME``; the device never executes a
 repeated request twice, so a retry cannot actuate twice.
@@ -19,11 +23,11 @@ answer to miss (the device's watchdog, ``watchdog_ms``, judges that side).
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..clock import REAL, Clock
 from ..errors import DeviceError
 from . import wire
 from .wire import Message, Nak, NakReason
@@ -98,12 +102,15 @@ class Link:
         Called in the reader thread with each event message (ONSET, PLAY_DONE, ALARM).
     trace:
         Called with ``("to_device" | "to_host", message_or_error)`` for every frame.
+    clock:
+        What the link waits on and stamps with (the real clock unless another is given).
     """
 
     def __init__(self, port: Any, *, name: str, reply_timeout_s: float = 0.05, retries: int = 8,
                  on_event: Callable[[Message], None] | None = None,
-                 trace: Callable[[str, object], None] | None = None):
+                 trace: Callable[[str, object], None] | None = None, clock: Clock = REAL):
         self.port = port
+        self.clock = clock
         self.name = name
         self.reply_timeout_s = reply_timeout_s
         self.retries = retries
@@ -129,8 +136,8 @@ class Link:
         self._reply: Message | None = None
         self._resend = False
         self._dev_seq: int | None = None
-        self.last_rx = time.monotonic()
-        self.last_tx = time.monotonic()
+        self.last_rx = clock.now()
+        self.last_tx = clock.now()
         # When the first frame sent since the last valid frame received went out: the
         # device is judged silent from then, not from its last frame, so a host that was
         # itself starved of the CPU (and sent nothing) does not take that for a pulled cable.
@@ -138,9 +145,15 @@ class Link:
         self._closing = threading.Event()
         self._reader_thread: threading.Thread | None = None
         self._hb_thread: threading.Thread | None = None
+        # A port that delivers its own bytes (in-process, on a virtual clock): no threads.
+        self._fed = hasattr(port, "attach")
+        self._hb_timer: Any = None
 
     # -- lifecycle --------------------------------------------------------------------------
     def start(self) -> None:
+        if self._fed:
+            self.port.attach(self._feed, self._port_failed)
+            return
         self._reader_thread = threading.Thread(target=self._read_loop, daemon=True,
                                                name=f"vtexp-link-reader {self.name}")
         self._reader_thread.start()
@@ -148,14 +161,19 @@ class Link:
     def start_heartbeat(self, period_ms: int) -> None:
         """Send heartbeats and watch for silence from now on (after the handshake)."""
         self.heartbeat_s = period_ms / 1000.0
-        self.last_rx = time.monotonic()
+        self.last_rx = self.clock.now()
         self.unanswered_since = None
+        if self._fed:
+            self._arm_heartbeat()
+            return
         self._hb_thread = threading.Thread(target=self._heartbeat_loop, daemon=True,
                                            name=f"vtexp-link-heartbeat {self.name}")
         self._hb_thread.start()
 
     def close(self) -> None:
         self._closing.set()
+        if self._hb_timer is not None:
+            self._hb_timer.cancel()
         with self._cond:
             self._cond.notify_all()
         try:
@@ -184,8 +202,13 @@ class Link:
         with self._cond:
             if self.lost is None:
                 self.lost = reason
-                self.lost_at = time.monotonic()
+                self.lost_at = self.clock.now()
             self._cond.notify_all()
+
+    def wait_for(self, predicate: Callable[[], object], timeout: float | None) -> bool:
+        """Wait until ``predicate()`` holds (checked whenever a frame arrives or the link
+        is lost or closed) or ``timeout`` seconds pass; return whether it holds."""
+        return self.clock.wait_for(self._cond, predicate, timeout)
 
     # -- requests ---------------------------------------------------------------------------
     def reply_timeout_for(self, n_bytes: int, reply_bytes: int = 64) -> float:
@@ -215,16 +238,12 @@ class Link:
                 self._pending, self._reply, self._resend = seq, None, False
             attempt = 0
             while True:
-                sent = time.monotonic()
+                sent = self.clock.now()
                 self._write(frame, msg)
-                deadline = time.monotonic() + timeout
+                self.wait_for(lambda: (self._reply is not None or self._resend
+                                       or self.lost is not None or self._closing.is_set()),
+                              timeout)
                 with self._cond:
-                    while (self._reply is None and not self._resend and self.lost is None
-                           and not self._closing.is_set()):
-                        left = deadline - time.monotonic()
-                        if left <= 0:
-                            break
-                        self._cond.wait(left)
                     reply, resend = self._reply, self._resend
                     self._resend = False
                 self.check()
@@ -233,7 +252,7 @@ class Link:
                 if reply is not None:
                     if self.clock_sample is not None and isinstance(msg, wire.Heartbeat) \
                             and isinstance(reply, wire.Ack):
-                        self.clock_sample(sent * 1000.0, time.monotonic() * 1000.0,
+                        self.clock_sample(sent * 1000.0, self.clock.now_ms(),
                                           reply.t_us / 1000.0)
                     return reply
                 if attempt >= retries:
@@ -251,9 +270,9 @@ class Link:
 
     def ping(self) -> float:
         """Round-trip time of one HEARTBEAT, in milliseconds."""
-        t = time.perf_counter()
+        t = self.clock.now()
         self.expect(wire.Heartbeat(), wire.Ack, retries=0)
-        rtt = (time.perf_counter() - t) * 1000.0
+        rtt = (self.clock.now() - t) * 1000.0
         self.stats.last_rtt_ms = rtt
         return rtt
 
@@ -271,35 +290,32 @@ class Link:
 
     def _write(self, frame: bytes, msg: Message) -> None:
         if self.unanswered_since is None:
-            self.unanswered_since = time.monotonic()      # before the write: a reply can't precede it
+            self.unanswered_since = self.clock.now()      # before the write: a reply can't precede it
         try:
             with self._tx_lock:
                 self.port.write(frame)
         except Exception as e:      # SerialException, OSError, or a port closed under us
             self.mark_lost(f"writing to {self.name} failed ({e})")
             self.check()
-        self.last_tx = time.monotonic()
+        self.last_tx = self.clock.now()
         self.stats.tx_frames += 1
         self.stats.tx_bytes += len(frame)
         if self.trace:
             self.trace("to_device", msg)
 
-    # -- reader -----------------------------------------------------------------------------
+    # -- reader ---------------------------------------------------------------------------
     def _read_loop(self) -> None:
-        ran = time.monotonic()
+        ran = self.clock.now()
         while not self._closing.is_set():
             try:
                 n = self.port.in_waiting
                 data = self.port.read(n if n else 1)
             except Exception as e:  # SerialException/OSError: unplugged; TypeError: closed
-                if not self._closing.is_set():
-                    self.mark_lost(f"the port {self.name} reported an error ({e})")
+                self._port_failed(e)
                 return
             if data:
-                self.stats.rx_bytes += len(data)
-                for item in self._reader.feed(data):
-                    self._dispatch(item)
-            now = time.monotonic()
+                self._feed(data)
+            now = self.clock.now()
             if now - ran > STARVED_S and self.unanswered_since is not None:
                 # This thread was not run for a while (the computer was busy): neither,
                 # perhaps, was a device in this process or the program feeding the pty.
@@ -307,15 +323,31 @@ class Link:
                 self.stats.starved += 1
                 self.unanswered_since = now
             ran = now
-            limit = self.silence_limit_s
-            since = self.unanswered_since
-            if limit is not None and self.lost is None and since is not None:
-                quiet = time.monotonic() - since
-                if quiet > limit:
-                    self.mark_lost(f"nothing valid came back from the device on {self.name} "
-                                   f"for {quiet * 1000:.0f} ms after a request (heartbeat "
-                                   f"period {self.heartbeat_s * 1000:.0f} ms)")
-                    return
+            if self._check_silence():
+                return
+
+    def _feed(self, data: bytes) -> None:
+        """Bytes from the device: every frame in them dispatched."""
+        self.stats.rx_bytes += len(data)
+        for item in self._reader.feed(data):
+            self._dispatch(item)
+
+    def _port_failed(self, error: BaseException) -> None:
+        if not self._closing.is_set():
+            self.mark_lost(f"the port {self.name} reported an error ({error})")
+
+    def _check_silence(self) -> bool:
+        """Mark the link lost if the device has been silent too long after a request."""
+        limit = self.silence_limit_s
+        since = self.unanswered_since
+        if limit is not None and self.lost is None and since is not None:
+            quiet = self.clock.now() - since
+            if quiet > limit:
+                self.mark_lost(f"nothing valid came back from the device on {self.name} "
+                               f"for {quiet * 1000:.0f} ms after a request (heartbeat "
+                               f"period {self.heartbeat_s * 1000:.0f} ms)")
+                return True
+        return False
 
     def _dispatch(self, item: tuple[int, Message] | wire.WireError) -> None:
         if isinstance(item, wire.WireError):
@@ -324,7 +356,7 @@ class Link:
                 self.trace("to_host", item)
             return
         seq, msg = item
-        self.last_rx = time.monotonic()
+        self.last_rx = self.clock.now()
         self.unanswered_since = None
         self.stats.rx_frames += 1
         if self.trace:
@@ -351,32 +383,51 @@ class Link:
                     self.stats.stale_replies += 1
         elif self.on_event is not None:
             self.on_event(msg)
+            with self._cond:
+                self._cond.notify_all()     # whoever waits on what the event says
 
     # -- heartbeat --------------------------------------------------------------------------
     def _heartbeat_loop(self) -> None:
         assert self.heartbeat_s is not None
-        every = HEARTBEAT_FRACTION * self.heartbeat_s
         while not self._closing.wait(CHECK_FRACTION * self.heartbeat_s):
             if self.lost is not None:
                 return
-            now = time.monotonic()
-            if now - self.last_tx < every:
-                continue
-            nxt = self.next_send_at
-            if nxt is not None and -0.001 < nxt - time.perf_counter() < 0.005:
-                continue            # a streamed frame is due in a moment; it feeds the watchdog
-            gate = self.heartbeat_gate
-            if gate is not None and not gate():
-                continue            # the stream's loop is stalled: let the watchdog act
-            try:
-                t = time.perf_counter()
-                # A lost heartbeat is sent again at once (a few times) so that one bad
-                # frame on a noisy line does not look like a pulled cable.
-                baud = getattr(self.port, "baudrate", None) or 115200
-                wait = max(every / 4, 3 * 32 * 10.0 / baud)   # 32 bytes: both frames
-                if self.request(wire.Heartbeat(), retries=3, blocking=False,
-                                timeout_s=wait) is not None:
-                    self.stats.heartbeats += 1
-                    self.stats.last_rtt_ms = (time.perf_counter() - t) * 1000.0
-            except DeviceError:
-                pass                # silence is judged by the reader, not by one heartbeat
+            self._heartbeat_due()
+
+    def _arm_heartbeat(self) -> None:
+        """The heartbeat as a timer on the clock (a port that feeds itself)."""
+        assert self.heartbeat_s is not None
+        self._hb_timer = self.clock.call_later(CHECK_FRACTION * self.heartbeat_s,
+                                               self._heartbeat_timer)
+
+    def _heartbeat_timer(self) -> None:
+        if self._closing.is_set() or self.lost is not None:
+            return
+        self._arm_heartbeat()               # first: a heartbeat below waits on the clock
+        if not self._check_silence():
+            self._heartbeat_due()
+
+    def _heartbeat_due(self) -> None:
+        """Send a heartbeat if nothing went out for a fifth of the period."""
+        assert self.heartbeat_s is not None
+        every = HEARTBEAT_FRACTION * self.heartbeat_s
+        now = self.clock.now()
+        if now - self.last_tx < every:
+            return
+        nxt = self.next_send_at
+        if nxt is not None and -0.001 < nxt - now < 0.005:
+            return                  # a streamed frame is due in a moment; it feeds the watchdog
+        gate = self.heartbeat_gate
+        if gate is not None and not gate():
+            return                  # the stream's loop is stalled: let the watchdog act
+        try:
+            # A lost heartbeat is sent again at once (a few times) so that one bad
+            # frame on a noisy line does not look like a pulled cable.
+            baud = getattr(self.port, "baudrate", None) or 115200
+            wait = max(every / 4, 3 * 32 * 10.0 / baud)   # 32 bytes: both frames
+            if self.request(wire.Heartbeat(), retries=3, blocking=False,
+                            timeout_s=wait) is not None:
+                self.stats.heartbeats += 1
+                self.stats.last_rtt_ms = (self.clock.now() - now) * 1000.0
+        except DeviceError:
+            pass                # silence is judged by the reader, not by one heartbeat

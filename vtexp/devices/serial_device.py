@@ -24,7 +24,12 @@ ALL_OFF at once. When the device is lost, the host raises :class:`DeviceLost`
 within one heartbeat period and the device's own watchdog turns everything off.
 
 :class:`EmulatedDevice` (``emulator``) is a :class:`SerialDevice` talking to
-a :class:`~vtexp.devices.emulator.PtyEmulator` that it starts itself.
+an emulated device that it starts itself: a
+:class:`~vtexp.devices.emulator.PtyEmulator` on a pseudo-terminal on the real clock,
+a :class:`~vtexp.devices.emulator.LoopbackEmulator` in-process on a virtual one.
+
+Time is the device's :class:`~vtexp.clock.Clock` (``clock=``): the link's timeouts
+and heartbeats, the waits for a play's onsets and the host-streamed frames' times.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from ..clock import REAL, Clock
 from ..errors import DeviceError, InputError
 from ..model import (
     DeviceInfo,
@@ -124,27 +130,29 @@ def change_groups(pulses: list[Pulse], cols: int, off: Setting
     return out
 
 
-def wait_until(t_perf: float, link: Link | None = None, spin_s: float = 0.005,
+def wait_until(t: float, clock: Clock = REAL, link: Link | None = None, spin_s: float = 0.005,
                poll: Callable[[], None] | None = None) -> None:
-    """Sleep until shortly before ``t_perf`` (``time.perf_counter``), then spin to it.
+    """Sleep until shortly before ``t`` (the clock's seconds), then spin to it.
 
     Sleeps in slices of at most 10 ms so that a lost ``link`` is raised at once,
     not at the next frame; with ``poll`` (which may raise), in slices of
     ``STOP_POLL_S``, calling it before each. The last ``spin_s`` are spent awake
     and poll nothing: a thread woken from sleep on a busy machine can start
-    milliseconds late (``bench/timing.py``).
+    milliseconds late (``bench/timing.py``). A virtual clock is never late: it
+    sleeps to the instant.
     """
     slice_s = 0.010 if poll is None else STOP_POLL_S
+    spin_s = 0.0 if clock.virtual else spin_s
     while True:
         if link is not None:
             link.check()
-        left = t_perf - time.perf_counter()
+        left = t - clock.now()
         if left <= 0:
             return
         if left > spin_s:
             if poll is not None:
                 poll()
-            time.sleep(min(left - spin_s, slice_s))
+            clock.sleep(min(left - spin_s, slice_s))
         else:
             time.sleep(0)           # let the reader thread run while we spin
 
@@ -180,6 +188,9 @@ class SerialDevice(DeviceBase):
     handshake_timeout_s:
         How long HELLO is tried: an Arduino resets when its port opens, and its
         bootloader waits about a second before the firmware starts.
+    clock:
+        What the device's link waits on (:class:`~vtexp.clock.Clock`; the real one
+        unless another is given, a virtual one for an in-process emulator).
     """
 
     backend = "serial"
@@ -188,8 +199,8 @@ class SerialDevice(DeviceBase):
                  timing: Timing = "device", heartbeat_ms: int = 200,
                  watchdog_ms: int | None = None, reply_timeout_ms: float = 25,
                  retries: int = 8, handshake_timeout_s: float = 3.0,
-                 trace: Callable[[str, object], None] | None = None):
-        super().__init__(profile)
+                 trace: Callable[[str, object], None] | None = None, clock: Clock = REAL):
+        super().__init__(profile, clock)
         if timing not in ("device", "host"):
             raise InputError(f"timing must be 'device' or 'host' (got {timing!r})")
         self.port = port
@@ -221,15 +232,13 @@ class SerialDevice(DeviceBase):
 
     # -- open / close -----------------------------------------------------------------------
     def _open(self) -> DeviceInfo:
-        import serial  # pyserial; imported here so that 'vtexp --help' stays fast
+        from .emulator import open_port
 
         self._lost_reported = False
         self._session_ended = None
         try:
-            # exclusive: two programs driving one array would interleave their frames
-            port = serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=0.01,
-                                         write_timeout=2.0, exclusive=True)
-        except (serial.SerialException, ValueError, OSError) as e:
+            port = open_port(self.port, baudrate=self.baudrate, clock=self.clock)
+        except (ValueError, OSError) as e:      # pyserial's SerialException is an OSError
             hint = ("another program (another vtexp?) has it open"
                     if "lock" in str(e).lower() else
                     "'vtexp device list' shows the ports found")
@@ -240,7 +249,8 @@ class SerialDevice(DeviceBase):
         except Exception:
             pass
         link = Link(port, name=self.port, reply_timeout_s=self.reply_timeout_s,
-                    retries=self.retries, on_event=self._on_event, trace=self.trace)
+                    retries=self.retries, on_event=self._on_event, trace=self.trace,
+                    clock=self.clock)
         self._link = link
         self._outputs = [self._off] * (self.profile.rows * self.profile.cols)
         self.clock_map.reset()                  # a device opened again may have restarted its clock
@@ -417,7 +427,6 @@ class SerialDevice(DeviceBase):
 
     # -- events (reader thread) -------------------------------------------------------------
     def _on_event(self, msg: Message) -> None:
-        link = self._link
         st = self._current
         if isinstance(msg, Onset) and st is not None and msg.play_id == st.play_id:
             for i in range(msg.first, min(msg.first + msg.count, st.n)):
@@ -428,9 +437,6 @@ class SerialDevice(DeviceBase):
             self.alarms.append(msg)
             if msg.code == wire.AlarmCode.WATCHDOG:
                 self._session_ended = "ALARM WATCHDOG"
-        if link is not None:
-            with link._cond:
-                link._cond.notify_all()
 
     # -- play -------------------------------------------------------------------------------
     def _play(self, schedule: Schedule) -> PlayReport:
@@ -557,15 +563,15 @@ class SerialDevice(DeviceBase):
         """
         hb = link.heartbeat_s or 0.2
         step = hb / 4 if self._should_stop is None else min(hb / 4, STOP_POLL_S)
-        deadline = time.monotonic() + duration_ms / 1000.0 + max(0.1, hb)
+        clock = self.clock
+        deadline = clock.now() + duration_ms / 1000.0 + max(0.1, hb)
         while True:
             while st.done is None and link.lost is None:
-                left = deadline - time.monotonic()
+                left = deadline - clock.now()
                 if left <= 0:
                     break
-                with link._cond:
-                    if st.done is None and link.lost is None:
-                        link._cond.wait(min(left, step))
+                link.wait_for(lambda: st.done is not None or link.lost is not None,
+                              min(left, step))
                 self._check_stop()
             link.check()
             if st.done is not None:
@@ -574,7 +580,7 @@ class SerialDevice(DeviceBase):
             status = link.expect(Status(), StatusReply)
             if status.state in (wire.DeviceState.PLAYING, wire.DeviceState.ARMED) \
                     and status.play_id == st.play_id:
-                deadline = time.monotonic() + hb       # still going (device clock slower?)
+                deadline = clock.now() + hb       # still going (device clock slower?)
                 continue
             if status.state == wire.DeviceState.NO_SESSION:
                 raise DeviceError(f"the device on {self.port} ended the session during the "
@@ -631,12 +637,12 @@ class SerialDevice(DeviceBase):
         onsets: list[int | None] = [None] * len(pulses)
         first_t_us: int | None = None
         poll = self._check_stop if self._should_stop is not None else None
-        t0 = time.perf_counter() + 0.002
+        t0 = self.clock.now() + 0.002
         try:
             for t_ms, changes, starting in groups:
                 target = t0 + t_ms / 1000.0
                 link.next_send_at = target
-                wait_until(target, link, poll=poll)
+                wait_until(target, self.clock, link, poll=poll)
                 applied = None
                 for msg in self._frames(state, changes):
                     ack = link.expect(msg, Ack)
@@ -647,7 +653,8 @@ class SerialDevice(DeviceBase):
                 # says it best (each is sent at its time or later, never earlier)
                 implied = applied - round(t_ms * 1000)
                 if first_t_us is None:
-                    self._play_started(implied / 1000.0, self.clock_map.to_host_ms(implied / 1000.0))
+                    self._play_started(implied / 1000.0,
+                                       self.clock_map.to_host_ms(implied / 1000.0))
                 first_t_us = implied if first_t_us is None else min(first_t_us, implied)
                 for i in starting:
                     onsets[i] = applied
@@ -670,7 +677,8 @@ class SerialDevice(DeviceBase):
         # and the device's watchdog switches everything off.
         if self._link is not None:
             limit = self.stream_checkin_ms / 1000.0
-            self._link.heartbeat_gate = lambda: time.monotonic() - self._alive_at < limit
+            clock = self.clock
+            self._link.heartbeat_gate = lambda: clock.now() - self._alive_at < limit
 
     def _stream_stopped(self) -> None:
         if self._link is not None:
@@ -745,7 +753,9 @@ class SerialDevice(DeviceBase):
 
 
 class EmulatedDevice(SerialDevice):
-    """``emulator``: a :class:`SerialDevice` on a pty served by a :class:`PtyEmulator`."""
+    """``emulator``: a :class:`SerialDevice` talking to an emulated device it starts: on a
+    pty (:class:`~vtexp.devices.emulator.PtyEmulator`) on the real clock, in-process
+    (:class:`~vtexp.devices.emulator.LoopbackEmulator`) on a virtual one."""
 
     backend = "emulator"
 
@@ -757,10 +767,14 @@ class EmulatedDevice(SerialDevice):
         self._emulator_options = emulator_options or {}
 
     def _open(self) -> DeviceInfo:
-        from .emulator import PtyEmulator
+        from .emulator import LoopbackEmulator, PtyEmulator
 
-        self.emulator = PtyEmulator.for_profile(self.profile, faults=self._faults,
-                                                **self._emulator_options)
+        if self.clock.virtual:
+            self.emulator = LoopbackEmulator.for_profile(
+                self.profile, clock=self.clock, faults=self._faults, **self._emulator_options)
+        else:
+            self.emulator = PtyEmulator.for_profile(self.profile, faults=self._faults,
+                                                    **self._emulator_options)
         self.port = self.emulator.start()
         try:
             return super()._open()
