@@ -1,8 +1,9 @@
 """One contract, every backend: what the session engine relies on from a Device.
 
 The sim backend passes it in-process; the serial backend passes it against the
-emulator over a real pseudo-terminal (as ``serial:PORT``, and as the
-``emulator`` backend with device-side and host-streamed timing), and against the
+emulator in-process on a virtual clock (the ``emulator`` backend, with device-side
+and host-streamed timing; on a real pty and the real clock where a test needs real
+time), against the emulator over a real pseudo-terminal (as ``serial:PORT``), and against the
 reference firmware in C: its host build on a pty, and its ATmega2560 build, the
 very .elf, in simavr. "Driven" is what the device itself drove (the sim's record;
 the emulated firmware's output history; the C firmware's record of its outputs;
@@ -22,6 +23,7 @@ from pathlib import Path
 
 import pytest
 
+from vtexp.clock import REAL, VirtualClock
 from vtexp.devices import Device, fwtrace, open_device
 from vtexp.devices.cfirmware import AvrSimulator, HostFirmware
 from vtexp.devices.emulator import PtyEmulator
@@ -61,7 +63,7 @@ def make_backend(name: str) -> Backend:
     if name in ("emulator", "emulator-host-timing"):
         timing = "host" if name.endswith("host-timing") else "device"
         return Backend(name, lambda prof, realtime=False: open_device(
-            "emulator", prof, timing=timing),
+            "emulator", prof, timing=timing, clock=REAL if realtime else VirtualClock()),
             lambda dev: _emu_driven(dev.emulator, dev.profile.cols),
             lambda dev: dev.emulator.all_outputs_off())
     if name == "serial-pty":

@@ -1,10 +1,14 @@
-"""Every fault of issue 4, on the serial backend against the emulator over a real pty.
+"""Every fault of the serial line, on the serial backend against the emulator.
 
 Dropped, corrupted and delayed bytes: detected, retried, counted, and the device
 drives exactly the schedule (compared with the emulated firmware's own output
 history). A pulled cable or a silent device: DeviceLost within one heartbeat
 period, a message for people, and the device off by itself. A device of
 another geometry: refused at the handshake.
+
+The emulator runs in-process on a virtual clock (the same bytes on the line as on a
+pty, in a fraction of the time), except where the subject is a real process: a host
+killed, stopped or starved of the CPU, talking to the emulator over a real pty.
 """
 
 from __future__ import annotations
@@ -19,8 +23,9 @@ from pathlib import Path
 
 import pytest
 
+from vtexp.clock import VirtualClock
 from vtexp.devices import open_device
-from vtexp.devices.emulator import Faults, PtyEmulator
+from vtexp.devices.emulator import Faults, LoopbackEmulator, PtyEmulator
 from vtexp.devices.link import DeviceLost
 from vtexp.devices.serial_device import SerialDevice, setting_of
 from vtexp.devices.wire import Onset
@@ -45,7 +50,7 @@ def sweep(n: int = 8, soa: float = 15, dur: float = 20) -> Schedule:
         for i in range(n)])
 
 
-def on_events(emu: PtyEmulator) -> list:
+def on_events(emu: PtyEmulator | LoopbackEmulator) -> list:
     return [(a.index, a.setting) for a in emu.actuations() if not a.setting.is_off]
 
 
@@ -54,7 +59,22 @@ def expected(s: Schedule, cols: int = 6) -> list:
 
 
 @pytest.fixture
-def emu():
+def clock():
+    return VirtualClock()
+
+
+@pytest.fixture
+def emu(clock):
+    """The emulated vest in-process, on the test's virtual clock."""
+    e = LoopbackEmulator.for_profile(VEST, clock=clock)
+    e.start()
+    yield e
+    e.stop()
+
+
+@pytest.fixture
+def pty_emu():
+    """The emulated vest on a real pty, for a host in another process."""
     e = PtyEmulator.for_profile(VEST)
     e.start()
     yield e
@@ -72,7 +92,8 @@ def emu():
 def test_damaged_bytes_are_detected_retried_counted_and_never_actuate_wrongly(fault, timing):
     s = sweep()
     plays = 10
-    dev = open_device("emulator", VEST, faults=fault, timing=timing, **NOISY)
+    dev = open_device("emulator", VEST, faults=fault, timing=timing, clock=VirtualClock(),
+                      **NOISY)
     with dev:
         for _ in range(plays):
             rep = dev.play(s)
@@ -94,7 +115,7 @@ def test_a_late_reply_is_retried_and_the_retry_does_not_actuate_twice():
     # sent again, and the device answers the repeat from its cache without acting.
     s = sweep(4)
     dev = open_device("emulator", VEST, faults=Faults(delay_ms=70), reply_timeout_ms=30,
-                      timing="host")
+                      timing="host", clock=VirtualClock())
     with dev:
         dev.play(s)
         stats = dev.link_stats()
@@ -115,7 +136,7 @@ def test_lost_onset_events_are_fetched_again_not_guessed():
     s = sweep(12, soa=5, dur=5)
     dev = open_device("emulator", VEST, faults=Faults(drop_rate=0.005, direction="to_host",
                                                         seed=5), emulator_options={"trace": tap},
-                      **NOISY)
+                      clock=VirtualClock(), **NOISY)
     with dev:
         reports = [dev.play(s) for _ in range(8)]
         stats = dev.link_stats()
@@ -134,51 +155,48 @@ def long_vest_schedule() -> Schedule:
 
 
 @pytest.mark.parametrize("timing", ["device", "host"])
-def test_cable_pulled_mid_trial(emu, timing):
-    dev = SerialDevice(VEST, emu.port, timing=timing, heartbeat_ms=HEARTBEAT_MS)
+def test_cable_pulled_mid_trial(emu, clock, timing):
+    dev = SerialDevice(VEST, emu.port, timing=timing, heartbeat_ms=HEARTBEAT_MS, clock=clock)
     with dev:
         pulled = []
 
         def pull():
-            pulled.append(time.monotonic())
+            pulled.append(clock.now())
             emu.unplug()
-        t = threading.Timer(0.4, pull)
-        t.start()
+        clock.call_later(0.4, pull)
         with pytest.raises(DeviceLost) as exc:
             dev.play(long_vest_schedule())
-        noticed = time.monotonic() - pulled[0]
+        noticed = clock.now() - pulled[0]
     msg = str(exc.value)
     assert f"lost contact with the tactile device on {emu.port}" in msg
     assert "cable may have been pulled" in msg and "turns every actuator off by itself" in msg
     assert noticed < HEARTBEAT_MS / 1000
     # The device, still powered, heard nothing more and turned everything off by itself.
-    deadline = time.monotonic() + 1.0
-    while not emu.all_outputs_off() and time.monotonic() < deadline:
-        time.sleep(0.01)
+    clock.sleep(1.0)
     assert emu.all_outputs_off()
     assert emu.firmware.counters.watchdog_trips == 1
     assert emu.actuations()[-1].cause == "watchdog"
 
 
-def test_device_gone_silent_is_noticed_within_one_heartbeat(emu):
-    dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS)
+def test_device_gone_silent_is_noticed_within_one_heartbeat(emu, clock):
+    dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS, clock=clock)
     with dev:
         muted = []
 
         def mute():
-            muted.append(time.monotonic())
+            muted.append(clock.now())
             emu.mute()
-        threading.Timer(0.3, mute).start()
+        clock.call_later(0.3, mute)
         with pytest.raises(DeviceLost,
                            match=r"nothing valid came back .* \(heartbeat period 200 ms\)"):
             dev.play(long_vest_schedule())
-        assert time.monotonic() - muted[0] < HEARTBEAT_MS / 1000
-    time.sleep(0.3)
+        assert clock.now() - muted[0] < HEARTBEAT_MS / 1000
+    clock.sleep(0.3)
     assert emu.all_outputs_off()        # it heard nothing either: its watchdog fired
 
 
-def test_after_a_pulled_cable_the_session_can_resume_on_the_replugged_device(emu):
-    dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS)
+def test_after_a_pulled_cable_the_session_can_resume_on_the_replugged_device(emu, clock):
+    dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS, clock=clock)
     dev.open()
     emu.unplug()
     with pytest.raises(DeviceLost):
@@ -191,27 +209,28 @@ def test_after_a_pulled_cable_the_session_can_resume_on_the_replugged_device(emu
     assert len(rep.pulses) == 3
 
 
-def test_closing_says_goodbye_and_the_device_raises_no_alarm(emu):
-    with SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS) as dev:
+def test_closing_says_goodbye_and_the_device_raises_no_alarm(emu, clock):
+    with SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS, clock=clock) as dev:
         dev.play(sweep(2))
-    time.sleep(2 * HEARTBEAT_MS / 1000)       # longer than its watchdog
+    clock.sleep(2 * HEARTBEAT_MS / 1000)       # longer than its watchdog
     assert emu.all_outputs_off() and not emu.firmware.session
     assert emu.firmware.counters.watchdog_trips == 0 and emu.firmware.alarms == []
     assert emu.actuations()[-1].cause in ("play", "bye")
 
 
-def test_a_lost_device_is_reported_even_if_the_first_call_is_all_off(emu):
-    dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS)
+def test_a_lost_device_is_reported_even_if_the_first_call_is_all_off(emu, clock):
+    dev = SerialDevice(VEST, emu.port, heartbeat_ms=HEARTBEAT_MS, clock=clock)
     dev.open()
     emu.unplug()
-    time.sleep(0.05)
+    clock.sleep(0.05)
     with pytest.raises(DeviceLost):
         dev.all_off()
     dev.close()
 
 
-def test_host_killed_mid_trial_device_turns_off_by_itself(emu):
+def test_host_killed_mid_trial_device_turns_off_by_itself(pty_emu):
     """The host process dies (SIGKILL: no all-off, no goodbye) during a play."""
+    emu = pty_emu
     code = ("import sys; from vtexp.devices import open_device; "
             "from vtexp.model import DeviceProfile, Schedule, Pulse; "
             "p = DeviceProfile.load('vest_6x8'); "
@@ -242,10 +261,11 @@ def test_host_killed_mid_trial_device_turns_off_by_itself(emu):
 
 
 
-def test_a_host_starved_of_the_cpu_is_no_pulled_cable(emu):
+def test_a_host_starved_of_the_cpu_is_no_pulled_cable(pty_emu):
     """The host process stopped for 400 ms (SIGSTOP: a loaded lab PC, a swapping disk):
     more than the heartbeat period, less than the watchdog it asked for. Nothing was sent
     meanwhile, so no answer was missed: the play goes on and the session with it."""
+    emu = pty_emu
     code = ("from vtexp.devices import open_device; "
             "from vtexp.model import DeviceProfile, Schedule, Pulse; "
             "p = DeviceProfile.load('vest_6x8'); "
@@ -315,19 +335,21 @@ def stalled_host(emu, spec: str, duration_ms: int, stop_after_s: float) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
-def test_a_session_the_watchdog_ended_between_plays_is_started_again(emu):
+def test_a_session_the_watchdog_ended_between_plays_is_started_again(pty_emu):
     """The host stopped 500 ms while idle, longer than its 200 ms watchdog: the device
     turned everything off (it was off) and ended the session; the next play says HELLO
     again and plays, counted."""
+    emu = pty_emu
     got = stalled_host(emu, f"serial:{emu.port}", 50, 0.1)
     assert got["played"] is True and got["sessions_renewed"] == 1
     assert emu.firmware.counters.watchdog_trips == 1
     assert sum(1 for a in emu.actuations() if not a.setting.is_off) == 2   # both plays, once
 
 
-def test_a_play_the_watchdog_cut_short_says_why(emu):
+def test_a_play_the_watchdog_cut_short_says_why(pty_emu):
     """Stopped 500 ms in the middle of a 1 s pulse: the device switched it off after its
     200 ms watchdog; the play fails with what happened and what to change."""
+    emu = pty_emu
     got = stalled_host(emu, f"serial:{emu.port}", 1000, 1.3)
     assert got["played"] is False
     assert "turned every actuator off: its watchdog heard nothing from this computer for " \
@@ -337,10 +359,10 @@ def test_a_play_the_watchdog_cut_short_says_why(emu):
 
 # --------------------------------------------------------------------------- handshake
 
-def test_device_of_another_geometry_is_refused_at_handshake():
-    emu = PtyEmulator.for_profile(PAD, rows=16, cols=16)
+def test_device_of_another_geometry_is_refused_at_handshake(clock):
+    emu = LoopbackEmulator.for_profile(PAD, rows=16, cols=16, clock=clock)
     with emu:
-        dev = SerialDevice(PAD, emu.port)
+        dev = SerialDevice(PAD, emu.port, clock=clock)
         with pytest.raises(DeviceError) as exc:
             dev.open()
     msg = str(exc.value)
@@ -349,23 +371,24 @@ def test_device_of_another_geometry_is_refused_at_handshake():
     assert emu.actuations() == []
 
 
-def test_device_of_another_kind_is_refused_at_handshake():
-    emu = PtyEmulator.for_profile(SMA, rows=8, cols=6)     # an 8x6 SMA panel is no vest
+def test_device_of_another_kind_is_refused_at_handshake(clock):
+    # an 8x6 SMA panel is no vest
+    emu = LoopbackEmulator.for_profile(SMA, rows=8, cols=6, clock=clock)
     with emu, pytest.raises(DeviceError, match=r"8x6 sma_pin actuators driven by pulse_train, "
                                                r"but profile 'vest_6x8'"):
-        SerialDevice(VEST, emu.port).open()
+        SerialDevice(VEST, emu.port, clock=clock).open()
 
 
-def test_device_with_fewer_levels_than_the_profile_allows_is_refused():
-    emu = PtyEmulator.for_profile(VEST, max_level=1)
+def test_device_with_fewer_levels_than_the_profile_allows_is_refused(clock):
+    emu = LoopbackEmulator.for_profile(VEST, max_level=1, clock=clock)
     with emu, pytest.raises(DeviceError, match="allows level 2, but the device .* up to 1 only"):
-        SerialDevice(VEST, emu.port).open()
+        SerialDevice(VEST, emu.port, clock=clock).open()
 
 
-def test_sma_panel_weaker_than_its_profile_is_refused():
-    emu = PtyEmulator.for_profile(SMA, max_width_us=1000)
+def test_sma_panel_weaker_than_its_profile_is_refused(clock):
+    emu = LoopbackEmulator.for_profile(SMA, max_width_us=1000, clock=clock)
     with emu, pytest.raises(DeviceError, match=r"pulse width of 1.5 ms, but the device .* 1 ms"):
-        SerialDevice(SMA, emu.port).open()
+        SerialDevice(SMA, emu.port, clock=clock).open()
 
 
 def test_a_port_with_no_vtexp_device_says_so():
@@ -382,10 +405,13 @@ def test_a_missing_port_says_where_to_look():
         open_device("serial:/dev/does-not-exist", VEST).open()
 
 
-def test_a_port_in_use_by_another_program_is_refused(emu):
-    with SerialDevice(VEST, emu.port), \
+@pytest.mark.parametrize("where", ["pty", "loopback"])
+def test_a_port_in_use_by_another_program_is_refused(emu, pty_emu, clock, where):
+    port, clock = (pty_emu.port, None) if where == "pty" else (emu.port, clock)
+    kw = {"clock": clock} if clock else {}
+    with SerialDevice(VEST, port, **kw), \
             pytest.raises(DeviceError, match="another program .* has it open"):
-        SerialDevice(VEST, emu.port).open()
+        SerialDevice(VEST, port, **kw).open()
 
 
 def test_sma_trains_survive_a_noisy_line():
@@ -393,7 +419,8 @@ def test_sma_trains_survive_a_noisy_line():
     s = Schedule(device="sma_5x5", pulses=[
         Pulse(row=i % 5, col=(2 * i) % 5, onset_ms=20 * i, duration_ms=20, train=tr)
         for i in range(5)])
-    dev = open_device("emulator", SMA, faults=Faults(corrupt_rate=0.004, seed=2), **NOISY)
+    dev = open_device("emulator", SMA, faults=Faults(corrupt_rate=0.004, seed=2),
+                      clock=VirtualClock(), **NOISY)
     with dev:
         for _ in range(4):
             dev.play(s)
@@ -402,9 +429,9 @@ def test_sma_trains_survive_a_noisy_line():
 
 # --------------------------------------------------------------------------- link settings
 
-def test_link_settings_after_the_port_reach_the_device(emu):
+def test_link_settings_after_the_port_reach_the_device(emu, clock):
     dev = open_device(f"serial:{emu.port},heartbeat_ms=400,watchdog_ms=900,baud=115200,"
-                      "reply_ms=80", VEST)
+                      "reply_ms=80", VEST, clock=clock)
     assert dev.reply_timeout_s == 0.08
     with dev:
         info = dev.info()

@@ -10,7 +10,14 @@ Specs for :func:`open_device` (and ``--device`` on the command line):
   (:data:`SERIAL_OPTIONS`; ``reply_ms`` is how long a reply is waited for
   before a request is sent again, beyond the frame's own time on the line);
 - ``emulator``: the same serial backend talking to an emulated device that
-  it starts on a pseudo-terminal (byte-exact, no hardware).
+  it starts on a pseudo-terminal (byte-exact, no hardware), in real time;
+  ``emulator:virtual``: the same emulated device in-process on a virtual clock
+  (:class:`~vtexp.clock.VirtualClock`): the same bytes on the line, time passing as
+  fast as the computer goes (a rehearsal of a whole study with a scripted or model
+  participant in seconds; not for a person, who would feel nothing in time).
+
+``open_device(spec, profile, clock=...)`` gives the device a clock of the caller's
+(:mod:`vtexp.clock`; the real one by default).
 
 Backends are imported when first used, so importing this package (and the
 command line) stays fast.
@@ -78,11 +85,14 @@ def open_device(spec: str, profile: DeviceProfile, **options: Any) -> DeviceBase
         port, from_spec = _serial_options(arg)
         return SerialDevice(profile, port, **{**options, **from_spec})
     if kind == "emulator":
-        if arg:
-            raise InputError(f"'emulator' takes no option (got {arg!r}); to drive an emulator "
-                             "started with 'vtexp device emulate', use serial:PORT",
-                             key="--device")
+        if arg not in ("", "virtual"):
+            raise InputError(f"unknown emulator option {arg!r}; use 'emulator' or "
+                             "'emulator:virtual' (to drive an emulator started with 'vtexp "
+                             "device emulate', use serial:PORT)", key="--device")
         from .serial_device import EmulatedDevice
+        if arg == "virtual" and "clock" not in options:
+            from ..clock import VirtualClock
+            options["clock"] = VirtualClock()
         return EmulatedDevice(profile, **options)
     raise InputError(f"unknown device {spec!r}; available: {', '.join(BACKENDS)}",
                      key="--device")

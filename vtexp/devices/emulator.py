@@ -476,8 +476,9 @@ class LoopbackEmulator(_Emulator):
     # -- the line, on the clock -------------------------------------------------------------
     def connect(self, port: LoopbackPort) -> None:
         if self.host is not None and not self.host.closed:
-            raise DeviceError(f"{self.port} is open in another program (a port is opened "
-                              "by one program at a time)")
+            # as pyserial says of a port another program holds (exclusive=True)
+            raise OSError(errno.EBUSY, f"could not exclusively lock port {self.port}: it is "
+                                       "open in another program")
         self.host = port
 
     def mute(self, muted: bool = True) -> None:
