@@ -1,7 +1,9 @@
 """vtexp live: generated video files (OpenCV's VideoWriter) through each pipeline to the sim
-device and to the emulated firmware over a real pty; what the device drove audited by
-safety.check_schedule; tracking error against the videos' true centroids; every bad input
-in one message with every actuator off; Ctrl-C; the record and its replay."""
+device and to the emulated firmware (in-process on a virtual clock, its frames each at
+their time; over a real pty to a firmware in a process of its own where the host's real
+timing is the subject); what the device drove audited by safety.check_schedule; tracking
+error against the videos' true centroids; every bad input in one message with every
+actuator off; Ctrl-C; the record and its replay."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import pytest
 
 from conftest import ROOT, run_cli
 from vtexp._cv2 import cv2
+from vtexp.clock import VirtualClock
 from vtexp.devices import open_device
 from vtexp.encoding.mapping import ImageToArray
 from vtexp.errors import InputError
@@ -165,16 +168,21 @@ def test_a_video_not_paced_gives_every_frame_as_fast_as_the_loop_takes_it(videos
     camera's rate, and a loop held up drops frames instead of queueing them."""
     path, truth = videos["rectangle"]
     setup = LiveSetup.make("edge-trace")
-    with open_device("sim", setup.profile) as dev:
-        st = LiveRun(open_source(str(path), pace=False), LiveEncoder(setup), dev).run()
-    assert st.frames_captured == st.frames_processed == len(truth) and st.frames_dropped == 0
+    for clock in (None, VirtualClock()):        # a capture thread, and timers on a clock
+        kw = {"clock": clock} if clock else {}
+        with open_device("sim", setup.profile, **kw) as dev:
+            st = LiveRun(open_source(str(path), pace=False), LiveEncoder(setup), dev).run()
+        assert st.frames_captured == st.frames_processed == len(truth)
+        assert st.frames_dropped == 0
+
+    clock = VirtualClock()
 
     class Slow(LiveEncoder):
         def process(self, gray, **kw):
-            time.sleep(0.1)                       # a loop three frames behind the camera
+            clock.sleep(0.1)                      # a loop three frames behind the camera
             return super().process(gray, **kw)
 
-    with open_device("sim", setup.profile) as dev:
+    with open_device("sim", setup.profile, clock=clock) as dev:
         st = LiveRun(open_source(str(path)), Slow(setup), dev).run()
     assert st.frames_captured == len(truth) and st.frames_dropped > len(truth) / 2
     assert st.frames_processed + st.frames_dropped == st.frames_captured
@@ -200,12 +208,13 @@ def test_states_are_written_and_read_back():
     ("edge-trace", "rectangle", "cycle"), ("snake-corners", "rectangle", "cycle"),
     ("height-contours", "ball", "cycle"), ("edge-trace", "rectangle", "hold")])
 def test_a_video_felt_live_on_the_emulator(tmp_path, videos, pipeline, video, play):
-    """Real frames from a real video file, the real emulated firmware over a pty: the device
-    drove nothing unsafe, the array followed the object within half a pitch on average,
-    every frame was accounted for, and glass-to-skin latencies were measured."""
+    """Real frames from a real video file, each at its time, the emulated firmware behind
+    the serial backend (in-process, on a virtual clock): the device drove nothing unsafe,
+    the array followed the object within half a pitch on average, every frame was
+    accounted for, and glass-to-skin latencies were measured."""
     path, truth = videos[video]
     setup = LiveSetup.make(pipeline, play=play)
-    dev = open_device("emulator", setup.profile)
+    dev = open_device("emulator:virtual", setup.profile)
     try:
         res = run_live(open_source(str(path)), setup, dev, record=tmp_path / "rec")
         assert dev.emulator.all_outputs_off()
@@ -240,7 +249,7 @@ def test_each_change_of_a_trace_is_felt_in_the_first_outputs_sent_after_it(video
     setup = LiveSetup.make("edge-trace")
     assert setup.follow == "change"
     events = []
-    with open_device("sim", setup.profile) as dev:
+    with open_device("sim", setup.profile, clock=VirtualClock()) as dev:
         st = LiveRun(open_source(str(path)), LiveEncoder(setup), dev,
                      sinks=[lambda kind, e: events.append((kind, e))]).run()
     news = [k for k, (kind, e) in enumerate(events) if kind == "program"][1:]
@@ -258,7 +267,7 @@ def test_every_change_is_accounted_for(videos, play):
     left out by the guard — none is lost, none counted twice."""
     path, _ = videos["rectangle"]
     setup = LiveSetup.make("snake-corners", play=play)
-    with open_device("sim", setup.profile) as dev:
+    with open_device("sim", setup.profile, clock=VirtualClock()) as dev:
         st = LiveRun(open_source(str(path)), LiveEncoder(setup), dev).run()
     changes = st.frames_processed - st.frames_unchanged
     accounted = (len(st.latencies_ms) + st.frames_merged + st.changes_in_place
@@ -268,6 +277,7 @@ def test_every_change_is_accounted_for(videos, play):
         assert st.degradations["budget"] > 0
 
 
+@pytest.mark.realtime
 def test_the_horse_refused_as_one_schedule_degrades_live_and_nothing_unsafe_is_sent(
         tmp_path, videos):
     """The horse on the SMA panel breaks max_on_ms as one schedule (vtexp encode refuses it).
@@ -337,7 +347,7 @@ def test_vtexp_live_records_a_run_that_can_be_audited_and_replayed(tmp_path, vid
     assert lr.meta["pipeline"] == "snake-corners" and lr.meta["profile"]["name"] == "sma_5x5"
     # What was sent, stamped on the host's clock, is within the limits as well.
     check_schedule(outputs_schedule(lr.changes(), SMA), SMA)
-    again = run_cli("live-replay", str(rec), "--device", "emulator")
+    again = run_cli("live-replay", str(rec), "--device", "emulator:virtual")
     assert again.returncode == 0, again.stderr
     assert "replayed; every actuator is off" in again.stdout
     # An existing record folder is never written into.
@@ -400,7 +410,7 @@ def test_a_video_cut_short_plays_what_it_has(tmp_path, videos):
     path, _ = videos["rectangle"]
     cut = tmp_path / "cut.avi"
     cut.write_bytes(path.read_bytes()[: path.stat().st_size // 3])
-    r = run_cli("live", str(cut), "--pipeline", "edge-trace", "--device", "emulator")
+    r = run_cli("live", str(cut), "--pipeline", "edge-trace", "--device", "emulator:virtual")
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert "every actuator is off" in r.stdout
 
@@ -414,8 +424,8 @@ def test_a_frame_of_another_size_stops_with_everything_off(tmp_path):
         w, h = (320, 240) if k != 8 else (200, 150)
         cv2().imwrite(str(folder / f"f{k:03d}.png"),
                       render_shape(shape="square", width=w, height=h, center_x=0.3 + 0.02 * k))
-    r = run_cli("live", str(folder), "--pipeline", "edge-trace", "--device", "emulator",
-                "--record", str(tmp_path / "rec"))
+    r = run_cli("live", str(folder), "--pipeline", "edge-trace", "--device",
+                "emulator:virtual", "--record", str(tmp_path / "rec"))
     line = one_line_error(r)
     assert "frame 8 (f008.png)" in line and "200x150" in line and "320x240" in line
     rec = load_record(tmp_path / "rec")
@@ -432,7 +442,7 @@ def test_a_frame_of_the_wrong_type_stops_with_everything_off(frame, expected):
     good = [render_shape(shape="square", width=160, height=120, center_x=0.3 + 0.02 * k)
             for k in range(10)]
     setup = LiveSetup.make("edge-trace")
-    dev = open_device("emulator", VEST)
+    dev = open_device("emulator:virtual", VEST)
     try:
         with pytest.raises(InputError, match=expected):
             run_live(ArraySource([*good, frame], fps=30), setup, dev)
@@ -442,6 +452,7 @@ def test_a_frame_of_the_wrong_type_stops_with_everything_off(frame, expected):
         dev.close()
 
 
+@pytest.mark.realtime
 def test_a_camera_that_stops_delivering_is_one_message(tmp_path):
     producer = ("import sys, time\nfrom vtexp.stimuli import render_shape\n"
                 "for k in range(20):\n"
@@ -489,11 +500,11 @@ def test_ctrl_c_stops_with_everything_off(tmp_path, videos):
 def test_a_stop_asked_for_mid_run_turns_everything_off_on_the_device(videos):
     path, _ = videos["rectangle"]
     setup = LiveSetup.make("edge-trace", play="hold")
-    dev = open_device("emulator", VEST)
-    t_end = time.monotonic() + 1.0
+    dev = open_device("emulator:virtual", VEST)
+    t_end = dev.clock.now() + 1.0
     try:
         run = LiveRun(open_source(str(path)), LiveEncoder(setup), dev,
-                      should_stop=lambda: time.monotonic() > t_end and "the experimenter stopped")
+                      should_stop=lambda: dev.clock.now() > t_end and "the experimenter stopped")
         st = run.run()
         assert st.end_reason == "the experimenter stopped"
         assert dev.emulator.all_outputs_off()

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 
 from ..errors import InputError
 from ._io import err, out
@@ -20,28 +19,6 @@ def _size(text: str | None) -> tuple[int, int] | None:
         raise InputError(f"{text!r} is not WIDTHxHEIGHT in pixels (e.g. 640x480)",
                          key="--frame-size")
     return int(w), int(h)
-
-
-class _Progress:
-    """A status line every ``every_s`` seconds while the run goes on (no preview)."""
-
-    def __init__(self, every_s: float = 2.0):
-        self.every_s = every_s
-        self.next = time.monotonic() + every_s
-
-    def __call__(self, snap) -> None:
-        now = time.monotonic()
-        if now < self.next:
-            return
-        self.next = now + self.every_s
-        st = snap.stats
-        lat = "-" if not st.latencies_ms else \
-            f"p50 {st.latency(50):.1f} / p95 {st.latency(95):.1f} ms"
-        line = (f"  {now - st.started:6.1f} s  {st.recent_fps:5.1f} fps  "
-                f"dropped {st.frames_dropped}  latency {lat}  on {len(snap.applied)}")
-        if snap.notes:
-            line += "  safety: " + "; ".join(snap.notes)
-        out(line)
 
 
 def summary_lines(stats, setup) -> list[str]:
@@ -131,15 +108,16 @@ def cmd_live_replay(args) -> int:
     state_now: dict = {}
     try:
         with device:
-            t0 = time.monotonic() - states[0][0] / 1000.0 / args.speed
+            clock = device.clock
+            t0 = clock.now() - states[0][0] / 1000.0 / args.speed
             for t_ms, state in states:
                 due = t0 + t_ms / 1000.0 / args.speed
-                while (delay := due - time.monotonic()) > 0:
+                while (delay := due - clock.now()) > 0:
                     # Check in with the device as a live loop does; the guard may need
                     # frames between the recorded ones (a train to cut, a rest that ends).
                     deadline = device.stream_deadline_s()
-                    time.sleep(min(delay, device.stream_checkin_ms / 2000.0,
-                                   deadline if deadline is not None else delay))
+                    clock.sleep(min(delay, device.stream_checkin_ms / 2000.0,
+                                    deadline if deadline is not None else delay))
                     deadline = device.stream_deadline_s()
                     if deadline is not None and deadline <= 0:
                         device.stream(state_now)

@@ -39,8 +39,13 @@ changed. A change with no onset to measure is counted apart: one already so on t
 array (it switches off outputs that the guard was holding off:
 ``changes_in_place``), and one whose outputs the guard leaves out (over the power
 budget, or beyond a limit: ``changes_left_out``). The device reports onsets on its
-own clock; they are put on the host's clock (``time.monotonic``) by
-:class:`ClockMap`.
+own clock; they are put on the host's clock by :class:`ClockMap`.
+
+The loop's time is the device's :class:`~vtexp.clock.Clock` (``device.clock``): the
+real clock, or on a virtual one (an emulator in-process) the frames of a file come by
+timers when they are due and a run of seconds passes in the time its frames take to
+process; what a frame's processing costs is then not on the timeline (the host is
+infinitely fast there: ``bench/live.py`` measures the real loop).
 """
 
 from __future__ import annotations
@@ -48,13 +53,13 @@ from __future__ import annotations
 import math
 import sys
 import threading
-import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..clock import REAL, Clock
 from ..devices.base import DeviceBase, StreamReport
 from ..errors import DeviceError, InputError, SessionAborted
 from ..safety import Actuator, Drive
@@ -114,10 +119,11 @@ class LiveStats:
     last_notes_at: float = 0.0
     recent: deque = field(default_factory=lambda: deque(maxlen=64))
     end_reason: str = ""
+    clock: Clock = field(default=REAL, repr=False)
 
     @property
     def elapsed_s(self) -> float:
-        return max((self.ended or time.monotonic()) - self.started, 1e-9)
+        return max((self.ended or self.clock.now()) - self.started, 1e-9)
 
     @property
     def fps(self) -> float:
@@ -215,9 +221,10 @@ class LiveRun:
         self.sinks = list(sinks or [])
         self.on_snapshot = on_snapshot
         self.reconnect = reconnect
-        self.stats = LiveStats()
-        self.clock = ClockMap()
-        self.mailbox = LatestFrame()
+        self.clock: Clock = device.clock
+        self.stats = LiveStats(clock=self.clock)
+        self.clock_map = ClockMap()
+        self.mailbox = LatestFrame(self.clock)
         self._stop = threading.Event()
         self.program: Program | None = None
         self.epoch: float | None = None
@@ -242,8 +249,13 @@ class LiveRun:
         except BaseException:
             self.source.close()
             raise
-        capture = Capture(self.source, self.mailbox)
-        st.started = time.monotonic()
+        clock = self.clock
+        try:
+            capture = Capture(self.source, self.mailbox)
+        except BaseException:
+            self.source.close()
+            raise
+        st.started = clock.now()
         capture.start()
         last_desired: dict[Actuator, Drive] | None = None
         pending: _Pending | None = None
@@ -255,7 +267,7 @@ class LiveRun:
         sys.setswitchinterval(0.0005)       # the loop wakes on time while others compute
         try:
             while True:
-                now = time.monotonic()
+                now = clock.now()
                 if self._stop.is_set():
                     break
                 if self.should_stop is not None:
@@ -277,7 +289,7 @@ class LiveRun:
                 elif now - last_frame_at > self.stall_s:
                     raise InputError(f"{self.source.label} stopped delivering frames (none for "
                                      f"{self.stall_s:g} s)", key="SOURCE")
-                now = time.monotonic()
+                now = clock.now()
                 prog = self.program
                 desired = prog.state_at(prog.phase(now, self.epoch)) if prog else {}
                 deadline = dev.stream_deadline_s()
@@ -302,7 +314,7 @@ class LiveRun:
                     last_desired = None
                     continue
                 # Sleep until something happens.
-                now = time.monotonic()
+                now = clock.now()
                 waits = [end_at - now, self.stall_s - (now - last_frame_at) + 0.001,
                          dev.stream_checkin_ms / 2000.0]
                 if prog is not None:
@@ -325,7 +337,7 @@ class LiveRun:
         finally:
             sys.setswitchinterval(switch)
             try:
-                t_off = time.monotonic()
+                t_off = clock.now()
                 dev.all_off()
                 self._emit("output", {
                     "t_host": t_off, "t_device_ms": None, "t_onset_host": None, "frame": None,
@@ -333,7 +345,7 @@ class LiveRun:
                     "latency_ms": None, "latency_frame": None})
                 self._applied = {}
             finally:
-                st.ended = time.monotonic()
+                st.ended = clock.now()
                 capture.stop()
                 st.frames_captured = self.mailbox.captured
                 st.frames_dropped = self.mailbox.dropped
@@ -345,9 +357,9 @@ class LiveRun:
         st = self.stats
         st.reconnects += 1
         st.last_notes = [f"device: {error}"[:160], "reconnected: every actuator was off"]
-        st.last_notes_at = time.monotonic()
+        st.last_notes_at = self.clock.now()
         self._emit("output", {
-            "t_host": time.monotonic(), "t_device_ms": None, "t_onset_host": None,
+            "t_host": self.clock.now(), "t_device_ms": None, "t_onset_host": None,
             "frame": None, "changed": len(self._applied), "on": 0, "applied": {},
             "degradations": [], "latency_ms": None, "latency_frame": None})
         self._applied = {}
@@ -361,16 +373,16 @@ class LiveRun:
             raise error from None
         # a device opened again may have restarted its clock (an emulator is started
         # anew; a board resets when its port opens): map it afresh
-        self.clock = ClockMap()
+        self.clock_map = ClockMap()
 
     def _process(self, frame: Frame, pending: _Pending | None) -> _Pending | None:
         st = self.stats
         enc = self.encoder.process(frame.image, frame=frame.index, t_capture=frame.t_capture)
-        now = time.monotonic()          # the new cycle takes over from here, not from before
+        now = self.clock.now()          # the new cycle takes over from here, not from before
         st.frames_processed += 1
         st.frames_captured = self.mailbox.captured
         st.frames_dropped = self.mailbox.dropped
-        st.recent.append(time.monotonic())
+        st.recent.append(now)
         st.process_ms.append(enc.encode_ms + enc.code_ms)
         self.last_frame, self.last_encoded = frame, enc
         new = enc.program
@@ -401,7 +413,7 @@ class LiveRun:
             st.frames_unchanged += 1
         c = _centroid(new)
         self._emit("frame", {
-            "frame": frame.index, "t_capture": frame.t_capture, "t_processed": time.monotonic(),
+            "frame": frame.index, "t_capture": frame.t_capture, "t_processed": self.clock.now(),
             "process_ms": enc.encode_ms + enc.code_ms, "encode_ms": enc.encode_ms,
             "dropped_so_far": self.mailbox.dropped, "points": len(enc.pattern.points),
             "centroid_row": c[0], "centroid_col": c[1],
@@ -419,8 +431,8 @@ class LiveRun:
         st.changes_sent += rep.changed
         onset_host = None
         if rep.t_device_ms is not None:
-            self.clock.add(rep.host_before_ms, rep.host_after_ms, rep.t_device_ms)
-            onset_host = self.clock.to_host_ms(rep.t_device_ms)
+            self.clock_map.add(rep.host_before_ms, rep.host_after_ms, rep.t_device_ms)
+            onset_host = self.clock_map.to_host_ms(rep.t_device_ms)
         for d in rep.degradations:
             st.degradations[d.kind] += 1
         if rep.degradations:
@@ -473,7 +485,7 @@ class LiveRun:
     def _snapshot(self, applied: dict[Actuator, Drive]) -> None:
         if self.on_snapshot is not None:
             st = self.stats
-            notes = st.last_notes if time.monotonic() - st.last_notes_at < 2.0 else []
+            notes = st.last_notes if self.clock.now() - st.last_notes_at < 2.0 else []
             self.on_snapshot(Snapshot(self.last_frame, self.last_encoded, dict(applied), st,
                                       list(notes)))
 

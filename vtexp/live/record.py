@@ -22,7 +22,8 @@ The folder is created by the run (an existing folder is never written into) and 
     ``row,col:volts/Hz/ms``, space-separated), what the safety guard left out, and the
     glass-to-skin latency of the frame it completed (if it did).
 
-Times are milliseconds from the start of the run (host ``time.monotonic``). Rows are
+Times are milliseconds from the start of the run (on the run's clock: the device's,
+``time.monotonic`` on the real one). Rows are
 written by a writer thread in batches, one ``write`` and ``fsync`` per file per
 batch (at most ``flush_s`` apart), so that the loop never waits for the disk; a crash
 loses at most the rows of the last ``flush_s``, and a row cut short is detected by

@@ -12,13 +12,12 @@ from __future__ import annotations
 import platform
 import sys
 import threading
-import time
 from dataclasses import dataclass
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 from .. import __version__
+from ..clock import iso
 from ..devices.base import DeviceBase
 from ..errors import SessionAborted
 from .encoder import LiveEncoder, LiveSetup
@@ -49,15 +48,15 @@ def run_live(source: FrameSource, setup: LiveSetup, device: DeviceBase, *,
             "coding": setup.coding, "coding_params": setup.coding_params,
             "play": setup.play, "follow": setup.follow,
             "profile": setup.profile.model_dump(mode="json"),
-            "started": datetime.now(timezone.utc).astimezone().isoformat(),
+            "started": iso(device.clock),
             "versions": {"vtexp": __version__, "python": platform.python_version()}},
-            t0=time.monotonic())
+            t0=device.clock.now())
     holder: dict[str, Snapshot] = {}
     run = LiveRun(source, LiveEncoder(setup), device, duration_s=duration_s, stall_s=stall_s,
                   sinks=[recorder] if recorder else [],
                   on_snapshot=(lambda s: holder.__setitem__("s", s)) if preview else None)
     if recorder is not None:
-        recorder.t0 = time.monotonic()
+        recorder.t0 = device.clock.now()
     status = "failed"
     image = None
     try:
@@ -75,7 +74,7 @@ def run_live(source: FrameSource, setup: LiveSetup, device: DeviceBase, *,
     finally:
         if recorder is not None:
             info = device._info.model_dump(mode="json") if device._info is not None else None
-            recorder.close(status, ended=datetime.now(timezone.utc).astimezone().isoformat(),
+            recorder.close(status, ended=iso(device.clock),
                            device=info, end=run.stats.end_reason,
                            warnings=setup.warnings)
     return LiveResult(run.stats, Path(record) if record else None, image)

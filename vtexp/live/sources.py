@@ -2,11 +2,14 @@
 
 A source (:func:`open_source`) is a camera (``camera:N``), a video file, a folder of
 images, or another program writing raw frames to standard input (``-``). Its
-:meth:`~FrameSource.frames` yields :class:`Frame`\\ s, each stamped with
-``time.monotonic()`` when it was captured. :class:`Capture` reads a source in its
-own thread into a :class:`LatestFrame`, which holds only the newest frame: a frame
-that the loop had no time for is replaced by the next one and counted as dropped,
-never queued, so the frame processed is always the newest the camera gave.
+:meth:`~FrameSource.frames` yields :class:`Frame`\\ s, each stamped with the clock's
+time (:class:`~vtexp.clock.Clock`, ``time.monotonic`` on the real one) when it was
+captured. :class:`Capture` reads a source in its own thread into a
+:class:`LatestFrame`, which holds only the newest frame: a frame that the loop had
+no time for is replaced by the next one and counted as dropped, never queued, so
+the frame processed is always the newest the camera gave. On a virtual clock a
+video, a folder or arrays are read by timers on the clock instead, each frame when
+it is due; a camera and standard input run on the real clock only.
 
 A video file or a folder stands in for a camera: by default its frames are
 delivered at their frame rate (``pace``), each stamped when it became due, as a
@@ -25,8 +28,7 @@ import math
 import os
 import sys
 import threading
-import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -34,6 +36,7 @@ from typing import BinaryIO
 import numpy as np
 
 from .._cv2 import cv2
+from ..clock import REAL, Clock
 from ..errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
@@ -43,7 +46,7 @@ PIXEL_FORMATS = {"gray8": 1, "bgr24": 3}
 @dataclass
 class Frame:
     """One captured frame: ``index`` counts every frame the source gave (dropped ones too),
-    ``t_capture`` is ``time.monotonic()`` at capture, ``image`` is 8-bit gray."""
+    ``t_capture`` is the clock's time at capture (s), ``image`` is 8-bit gray."""
 
     index: int
     t_capture: float
@@ -58,11 +61,19 @@ class FrameSource:
     label = "source"
     #: Frames per second the source delivers at, if known.
     fps: float | None = None
+    #: A file's frames delivered at their rate (a camera is always "paced" by itself).
+    pace: bool = True
+    #: Frames that exist before they are read (a file, a folder, arrays), which a
+    #: virtual clock can deliver each at its time; a camera's or a pipe's come when
+    #: they come, in real time.
+    stored = False
 
     def open(self) -> None:
         """Open the source, or raise :class:`InputError` saying why it cannot be."""
 
-    def frames(self, stop: threading.Event) -> Iterator[Frame]:  # pragma: no cover
+    def frames(self, stop: threading.Event, clock: Clock = REAL
+               ) -> Iterator[Frame]:  # pragma: no cover
+        """The frames, each stamped on ``clock`` (paced on it, for a file)."""
         raise NotImplementedError
 
     def close(self) -> None:
@@ -135,14 +146,15 @@ class _QuietOpenCV:
         self._log.setLogLevel(self._level)
 
 
-def _paced(stop: threading.Event, t0: float, k: int, fps: float) -> float:
+def _paced(stop: threading.Event, clock: Clock, t0: float, k: int, fps: float) -> float:
     """Wait until frame ``k`` is due at ``fps`` from ``t0`` and return that time: when a
     camera would have captured it (a frame delivered late keeps its capture time, so
-    the lateness counts in its latency)."""
+    the lateness counts in its latency). On a virtual clock, frames are asked for when
+    they are due (:class:`Capture`): nothing to wait."""
     due = t0 + k / fps
     while not stop.is_set():
-        left = due - time.monotonic()
-        if left <= 0:
+        left = due - clock.now()
+        if left <= 0 or clock.virtual:
             break
         stop.wait(min(left, 0.05))
     return due
@@ -172,14 +184,14 @@ class CameraSource(FrameSource):
         fps = cap.get(cv.CAP_PROP_FPS)
         self.fps = fps if fps and math.isfinite(fps) and fps > 0 else None
 
-    def frames(self, stop: threading.Event) -> Iterator[Frame]:
+    def frames(self, stop: threading.Event, clock: Clock = REAL) -> Iterator[Frame]:
         check = FrameChecker(self.label)
         k = 0
         failing_since: float | None = None
         while not stop.is_set():
             with _QuietOpenCV():
                 ok, img = self._cap.read()
-            t = time.monotonic()
+            t = clock.now()
             if not ok or img is None:
                 failing_since = failing_since or t
                 if t - failing_since > self.stall_s:
@@ -199,6 +211,8 @@ class CameraSource(FrameSource):
 
 class VideoSource(FrameSource):
     """A video file, delivered at its frame rate (``pace``) or as fast as it is taken."""
+
+    stored = True
 
     def __init__(self, path: str | Path, *, pace: bool = True, fps: float | None = None):
         self.path = Path(path)
@@ -230,13 +244,13 @@ class VideoSource(FrameSource):
         self.fps = self._fps_override or (fps if fps and math.isfinite(fps) and 0 < fps <= 1000
                                           else 30.0)
 
-    def frames(self, stop: threading.Event) -> Iterator[Frame]:
+    def frames(self, stop: threading.Event, clock: Clock = REAL) -> Iterator[Frame]:
         check = FrameChecker(self.label)
         img = self._first
-        t0 = time.monotonic()
+        t0 = clock.now()
         k = 0
         while img is not None and not stop.is_set():
-            t = _paced(stop, t0, k, self.fps) if self.pace else time.monotonic()
+            t = _paced(stop, clock, t0, k, self.fps) if self.pace else clock.now()
             if stop.is_set():
                 return
             yield Frame(k, t, check(img, k))
@@ -254,6 +268,8 @@ class VideoSource(FrameSource):
 
 class FolderSource(FrameSource):
     """A folder of images, in name order, at ``fps`` (``pace``)."""
+
+    stored = True
 
     def __init__(self, path: str | Path, *, fps: float = 30.0, pace: bool = True):
         self.path = Path(path)
@@ -273,16 +289,16 @@ class FolderSource(FrameSource):
             raise InputError(f"no images in the folder (looked for "
                              f"{', '.join(IMAGE_SUFFIXES)})", path=str(self.path))
 
-    def frames(self, stop: threading.Event) -> Iterator[Frame]:
+    def frames(self, stop: threading.Event, clock: Clock = REAL) -> Iterator[Frame]:
         from ..stimuli import read_image
 
         check = FrameChecker(self.label)
-        t0 = time.monotonic()
+        t0 = clock.now()
         for k, f in enumerate(self.files):
             if stop.is_set():
                 return
             img = read_image(f)
-            t = _paced(stop, t0, k, self.fps) if self.pace else time.monotonic()
+            t = _paced(stop, clock, t0, k, self.fps) if self.pace else clock.now()
             yield Frame(k, t, check(img, k, f.name), f.name)
 
 
@@ -308,7 +324,7 @@ class StreamSource(FrameSource):
         if self.stream is None:
             self.stream = sys.stdin.buffer
 
-    def frames(self, stop: threading.Event) -> Iterator[Frame]:
+    def frames(self, stop: threading.Event, clock: Clock = REAL) -> Iterator[Frame]:
         w, h = self.size
         ch = PIXEL_FORMATS[self.pixel_format]
         n = w * h * ch
@@ -317,7 +333,7 @@ class StreamSource(FrameSource):
         fd = self.stream.fileno() if hasattr(self.stream, "fileno") else None
         while not stop.is_set():
             data = _read_exactly(self.stream, fd, n)
-            t = time.monotonic()
+            t = clock.now()
             if not data:
                 return
             if len(data) < n:
@@ -343,6 +359,8 @@ def _read_exactly(stream: BinaryIO, fd: int | None, n: int) -> bytes:
 class ArraySource(FrameSource):
     """Frames given as arrays (tests, and programs that use vtexp as a library)."""
 
+    stored = True
+
     def __init__(self, images: Iterable[np.ndarray], *, fps: float = 30.0, pace: bool = True,
                  label: str = "frames"):
         self.images = images
@@ -350,13 +368,13 @@ class ArraySource(FrameSource):
         self.pace = pace
         self.label = label
 
-    def frames(self, stop: threading.Event) -> Iterator[Frame]:
+    def frames(self, stop: threading.Event, clock: Clock = REAL) -> Iterator[Frame]:
         check = FrameChecker(self.label)
-        t0 = time.monotonic()
+        t0 = clock.now()
         for k, img in enumerate(self.images):
             if stop.is_set():
                 return
-            t = _paced(stop, t0, k, self.fps) if self.pace else time.monotonic()
+            t = _paced(stop, clock, t0, k, self.fps) if self.pace else clock.now()
             yield Frame(k, t, check(img, k))
 
 
@@ -391,16 +409,21 @@ class SourceEnded(Exception):
 class LatestFrame:
     """A one-frame mailbox: :meth:`put` replaces a frame not yet taken (counted in
     ``dropped``); :meth:`take` returns the newest frame, re-raises the capture thread's
-    error, or raises :class:`SourceEnded`."""
+    error, or raises :class:`SourceEnded`. :meth:`wait` waits on ``clock``."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Clock = REAL) -> None:
+        self.clock = clock
         self._cond = threading.Condition()
         self._frame: Frame | None = None
         self._error: BaseException | None = None
         self._ended = False
+        self._woken = False
         self.dropped = 0
         self.captured = 0
         self.last_capture: float | None = None
+        #: Called when a frame is taken (a virtual clock's capture of a file that is not
+        #: paced reads the next one then).
+        self.on_taken: Callable[[], None] | None = None
 
     def put(self, frame: Frame, *, block: bool = False,
             stop: threading.Event | None = None) -> None:
@@ -436,39 +459,65 @@ class LatestFrame:
                 raise SourceEnded()
             if f is not None:
                 self._cond.notify_all()         # a blocked put may go on
-            return f
+        if f is not None and self.on_taken is not None:
+            self.on_taken()
+        return f
 
     def wait(self, timeout: float) -> None:
-        """Wait at most ``timeout`` seconds for a frame, an error or the end."""
+        """Wait at most ``timeout`` seconds for a frame, an error, the end or
+        :meth:`notify`."""
+        self.clock.wait_for(self._cond, lambda: (self._frame is not None or self._woken
+                                                 or self._error is not None or self._ended),
+                            max(0.0, timeout))
         with self._cond:
-            if self._frame is None and self._error is None and not self._ended:
-                self._cond.wait(max(0.0, timeout))
+            self._woken = False
 
     def notify(self) -> None:
         """Wake a :meth:`wait` (to stop)."""
         with self._cond:
+            self._woken = True
             self._cond.notify_all()
 
 
 class Capture:
-    """Reads a source in its own thread into a :class:`LatestFrame`."""
+    """Reads a source into a :class:`LatestFrame`: in its own thread on the real clock; on
+    a virtual clock (the mailbox's), by timers, each frame of a stored source when it is
+    due (at its rate, or, not paced, when the loop has taken the one before)."""
 
     def __init__(self, source: FrameSource, mailbox: LatestFrame):
         self.source = source
         self.mailbox = mailbox
+        self.clock = mailbox.clock
         self.stop_event = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True,
-                                        name=f"vtexp-capture {source.label}")
+        self._frames: Iterator[Frame] | None = None
+        self._t0 = 0.0
+        self._k = 0
+        self._timer = None
+        self._thread = None
+        if self.clock.virtual:
+            if not source.stored:
+                raise InputError(f"{source.label} delivers frames in real time; it cannot be "
+                                 "read on a virtual clock", key="SOURCE")
+        else:
+            self._thread = threading.Thread(target=self._run, daemon=True,
+                                            name=f"vtexp-capture {source.label}")
 
     def start(self) -> None:
-        self._thread.start()
+        if self._thread is not None:
+            self._thread.start()
+            return
+        self._frames = self.source.frames(self.stop_event, self.clock)
+        self._t0 = self.clock.now()
+        if not self.source.pace:
+            self.mailbox.on_taken = lambda: self._later(self.clock.now())
+        self._later(self._t0)
 
     def _run(self) -> None:
         # A file or folder not paced at its frame rate waits for the loop to take each
         # frame (every frame processed, as fast as the loop goes); a camera never waits.
-        block = getattr(self.source, "pace", True) is False
+        block = self.source.pace is False
         try:
-            for frame in self.source.frames(self.stop_event):
+            for frame in self.source.frames(self.stop_event, self.clock):
                 self.mailbox.put(frame, block=block, stop=self.stop_event)
                 if self.stop_event.is_set():
                     break
@@ -476,11 +525,37 @@ class Capture:
         except BaseException as e:          # handed to the loop, which says it and stops
             self.mailbox.fail(e)
 
+    # -- on a virtual clock -----------------------------------------------------------------
+    def _later(self, t: float) -> None:
+        if not self.stop_event.is_set():
+            self._timer = self.clock.call_at(t, self._next)
+
+    def _next(self) -> None:
+        self._timer = None
+        if self.stop_event.is_set() or self._frames is None:
+            return
+        try:
+            frame = next(self._frames)
+        except StopIteration:
+            self.mailbox.end()
+            return
+        except BaseException as e:          # handed to the loop, which says it and stops
+            self.mailbox.fail(e)
+            return
+        self.mailbox.put(frame)
+        self._k += 1
+        if self.source.pace:
+            self._later(self._t0 + self._k / (self.source.fps or 30.0))
+
     def stop(self, close: bool = True) -> None:
         """Stop reading (and close the source, unless ``close`` is false: another reader
         follows, as a live camera trial's loop follows its still frame)."""
         self.stop_event.set()
         self.mailbox.notify()
-        self._thread.join(timeout=2.0)
+        if self._timer is not None:
+            self._timer.cancel()
+        self.mailbox.on_taken = None
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
         if close:
             self.source.close()

@@ -150,7 +150,7 @@ class LiveTrial:
             "encoding_params": setup.encoding_params, "coding": setup.coding,
             "coding_params": setup.coding_params,
             "play": setup.play, "follow": setup.follow,
-            "profile": setup.profile.model_dump(mode="json")}, t0=time.monotonic())
+            "profile": setup.profile.model_dump(mode="json")}, t0=device.clock.now())
         self.run = LiveRun(source, LiveEncoder(setup), device, sinks=[self.recorder],
                            stall_s=5.0)
         self.error: BaseException | None = None
@@ -164,7 +164,7 @@ class LiveTrial:
             self.error = e
 
     def start(self) -> None:
-        self.recorder.t0 = time.monotonic()
+        self.recorder.t0 = self.run.clock.now()
         self._thread.start()
 
     def stop(self, reason: str = "answered") -> float:
