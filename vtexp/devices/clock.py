@@ -12,21 +12,24 @@ with the shortest round trip among those of the last ``window_s`` seconds: the
 window keeps a crystal's drift (tens of ppm: 0.1 ms over 2 s at 50 ppm) out of the
 mapping, the shortest round trip its error small.
 
-Host times are ``time.monotonic()`` in milliseconds (CLOCK_MONOTONIC on Linux, the
-clock Lab Streaming Layer's ``local_clock`` reads there too).
+Host times are the host :class:`~vtexp.clock.Clock`'s milliseconds: on the real clock
+``time.monotonic()`` (CLOCK_MONOTONIC on Linux, the clock Lab Streaming Layer's
+``local_clock`` reads there too).
 """
 
 from __future__ import annotations
 
 import threading
-import time
 from collections import deque
+
+from ..clock import REAL, Clock
 
 
 class DeviceClock:
-    """Device time → host ``time.monotonic`` time, from timed exchanges (thread-safe)."""
+    """Device time → host time (``host``'s ms), from timed exchanges (thread-safe)."""
 
-    def __init__(self, window_s: float = 2.0, keep: int = 256):
+    def __init__(self, window_s: float = 2.0, keep: int = 256, host: Clock = REAL):
+        self.host = host
         self.window_ms = window_s * 1000.0
         self._samples: deque[tuple[float, float, float]] = deque(maxlen=keep)
         self._lock = threading.Lock()
@@ -59,7 +62,7 @@ class DeviceClock:
             if not self._samples:
                 return float("inf")
             newest = self._samples[-1][0]
-        return (time.monotonic() * 1000.0 if now_ms is None else now_ms) - newest
+        return (self.host.now_ms() if now_ms is None else now_ms) - newest
 
     def offset_ms(self) -> tuple[float, float] | None:
         """``(device − host offset, error bound)`` in ms, or None before any exchange."""
@@ -67,6 +70,6 @@ class DeviceClock:
         return None if best is None else (best[2], best[1] / 2.0)
 
     def to_host_ms(self, device_ms: float) -> float | None:
-        """``device_ms`` on the host's ``time.monotonic`` clock (ms), or None if unknown."""
+        """``device_ms`` on the host's clock (ms), or None if unknown."""
         off = self.offset_ms()
         return None if off is None else device_ms - off[0]

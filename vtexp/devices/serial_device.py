@@ -228,7 +228,7 @@ class SerialDevice(DeviceBase):
         self._off = wire.OFF[self._drive]
         self._outputs: list[Setting] = [self._off] * (profile.rows * profile.cols)
         #: The device's clock on this computer's, from every heartbeat's ACK.
-        self.clock_map = DeviceClock()
+        self.clock_map = DeviceClock(host=self.clock)
 
     # -- open / close -----------------------------------------------------------------------
     def _open(self) -> DeviceInfo:

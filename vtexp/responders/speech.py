@@ -23,11 +23,11 @@ import hashlib
 import os
 import shutil
 import subprocess
-import time
 import wave
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..clock import REAL, Clock
 from ..errors import InputError, SessionError
 
 PHRASES: dict[str, dict[str, str]] = {
@@ -194,13 +194,16 @@ class Voice:
         return path
 
     def prerender(self, texts) -> int:
-        """Render every clip the session may need; return how many were new."""
-        new = 0
-        for text in dict.fromkeys(t for t in texts if t and t.strip()):
-            if not self.path_of(text).is_file():
-                self.clip(text)
-                new += 1
-        return new
+        """Render every clip the session may need, espeak-ng running on every core;
+        return how many were new."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        todo = [t for t in dict.fromkeys(t for t in texts if t and t.strip())
+                if not self.path_of(t).is_file()]
+        if todo:
+            with ThreadPoolExecutor(max_workers=min(len(todo), os.cpu_count() or 1)) as pool:
+                list(pool.map(self.clip, todo))     # the first error, if any, is raised
+        return len(todo)
 
 
 def masking_noise(folder: Path, seconds: float = 4.0, rate: int = 22050) -> Path:
@@ -279,7 +282,7 @@ class PsychopyAudio:
 
 @dataclass
 class Played:
-    """A clip as it was played: what was said, the file, and when (``time.monotonic``)."""
+    """A clip as it was played: what was said, the file, and when (the speech's clock, s)."""
 
     text: str
     path: Path
@@ -288,9 +291,12 @@ class Played:
 
 
 class Speech:
-    """A queue of clips played one after another; :meth:`update` is called every frame."""
+    """A queue of clips played one after another; :meth:`update` is called every frame.
+    A clip lasts its recording's length on ``clock`` (the real one unless given)."""
 
-    def __init__(self, voice: Voice, audio, book: dict[str, str], noise: Path | None = None):
+    def __init__(self, voice: Voice, audio, book: dict[str, str], noise: Path | None = None,
+                 clock: Clock = REAL):
+        self.clock = clock
         self.voice = voice
         self.audio = audio
         self.book = book
@@ -314,7 +320,7 @@ class Speech:
         self.update()
 
     def update(self) -> None:
-        now = time.monotonic()
+        now = self.clock.now()
         if self.current is not None and now >= self.current[3]:
             text, path, start, end = self.current
             self.played.append(Played(text, path, start, end))
@@ -322,7 +328,7 @@ class Speech:
         if self.current is None and self.queue:
             text, path = self.queue.pop(0)
             self.audio.play(path)
-            start = time.monotonic()
+            start = self.clock.now()
             length = getattr(self.audio, "duration", wav_duration_s)(path)
             self.current = (text, path, start, start + length)
 
@@ -335,17 +341,17 @@ class Speech:
         if self.current is not None:
             text, path, start, _ = self.current
             self.audio.stop(path)
-            self.played.append(Played(text, path, start, time.monotonic()))
+            self.played.append(Played(text, path, start, self.clock.now()))
             self.current = None
         self.queue.clear()
 
     def start_noise(self) -> None:
         if self.noise is not None and self._noise_since is None:
             self.audio.loop(self.noise)
-            self._noise_since = time.monotonic()
+            self._noise_since = self.clock.now()
 
     def stop_noise(self) -> None:
         if self._noise_since is not None:
             self.audio.stop_loop()
-            self.noise_on.append((self._noise_since, time.monotonic()))
+            self.noise_on.append((self._noise_since, self.clock.now()))
             self._noise_since = None

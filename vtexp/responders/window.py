@@ -47,6 +47,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Callable, Sequence
 
+from ..clock import REAL, Clock
 from ..design import Trial
 from ..errors import InputError, SessionAborted, SessionError
 from .base import Replay, Response
@@ -241,12 +242,15 @@ class WindowResponder:
     The window opens on the first screen shown and closes after ``finish`` (or on
     an abort, or ``close()``). Pass ``win`` to draw in a window made elsewhere; pass
     ``lx`` (the experiment) to lay out every question and render every spoken clip
-    before the first trial; ``audio`` replaces PsychoPy's sound (tests).
+    before the first trial; ``audio`` replaces PsychoPy's sound (tests); ``clock`` is
+    what the spoken clips are timed on (:class:`~vtexp.clock.Clock`, the real one unless
+    given).
     """
 
     participant_kind = "person"
 
-    def __init__(self, options: WindowOptions | None = None, *, win=None, lx=None, audio=None):
+    def __init__(self, options: WindowOptions | None = None, *, win=None, lx=None, audio=None,
+                 clock: Clock = REAL):
         self.options = options or WindowOptions()
         self._core, self._event, self._visual = import_psychopy()
         self.win = win
@@ -276,7 +280,7 @@ class WindowResponder:
             name = lx.experiment.name if lx is not None else "any"
             voice = Voice(name, self.language)
             self.speech = Speech(voice, audio if audio is not None else PsychopyAudio(), book,
-                                 masking_noise(voice.folder) if noise else None)
+                                 masking_noise(voice.folder) if noise else None, clock=clock)
             if lx is not None:
                 voice.prerender(self.sentences(lx.experiment))
         mode = "fullscreen" if o.fullscreen else "windowed {}x{}".format(*o.size)
