@@ -100,6 +100,14 @@ class Link:
         How many times a request is sent again before giving up.
     on_event:
         Called in the reader thread with each event message (ONSET, PLAY_DONE, ALARM).
+    on_clock_sample:
+        Called with ``(sent_ms, answered_ms, device_ms)`` for each heartbeat answered:
+        the ACK carries the device's clock read in between (``devices.clock``).
+    may_heartbeat:
+        Asked, with the clock's time, before each heartbeat the link would send: false
+        holds it back (a frame of the user's is about to go out and feeds the watchdog
+        itself; or the user's own loop has stopped checking in, and the device's
+        watchdog should end the session).
     trace:
         Called with ``("to_device" | "to_host", message_or_error)`` for every frame.
     clock:
@@ -108,6 +116,8 @@ class Link:
 
     def __init__(self, port: Any, *, name: str, reply_timeout_s: float = 0.05, retries: int = 8,
                  on_event: Callable[[Message], None] | None = None,
+                 on_clock_sample: Callable[[float, float, float], None] | None = None,
+                 may_heartbeat: Callable[[float], bool] | None = None,
                  trace: Callable[[str, object], None] | None = None, clock: Clock = REAL):
         self.port = port
         self.clock = clock
@@ -119,14 +129,9 @@ class Link:
         self.stats = LinkStats()
         self.lost: str | None = None
         self.lost_at: float | None = None
-        self.next_send_at: float | None = None    # host-streamed play: keep heartbeats clear
-        # While set and false, no heartbeat is sent: the host's own loop has stopped
-        # checking in (a live stream), so the device's watchdog should end the session.
-        self.heartbeat_gate: Callable[[], bool] | None = None
         self.heartbeat_s: float | None = None
-        # Called with (sent_ms, answered_ms, device_ms) for each heartbeat answered: the
-        # ACK carries the device's clock read in between (``devices.clock``).
-        self.clock_sample: Callable[[float, float, float], None] | None = None
+        self.on_clock_sample = on_clock_sample
+        self.may_heartbeat = may_heartbeat
         self._reader = wire.FrameReader()
         self._cond = threading.Condition()
         self._tx_lock = threading.Lock()
@@ -250,10 +255,10 @@ class Link:
                 if self._closing.is_set():
                     raise DeviceError(f"the link to {self.name} was closed during a request")
                 if reply is not None:
-                    if self.clock_sample is not None and isinstance(msg, wire.Heartbeat) \
+                    if self.on_clock_sample is not None and isinstance(msg, wire.Heartbeat) \
                             and isinstance(reply, wire.Ack):
-                        self.clock_sample(sent * 1000.0, self.clock.now_ms(),
-                                          reply.t_us / 1000.0)
+                        self.on_clock_sample(sent * 1000.0, self.clock.now_ms(),
+                                             reply.t_us / 1000.0)
                     return reply
                 if attempt >= retries:
                     raise DeviceError(
@@ -414,12 +419,8 @@ class Link:
         now = self.clock.now()
         if now - self.last_tx < every:
             return
-        nxt = self.next_send_at
-        if nxt is not None and -0.001 < nxt - now < 0.005:
-            return                  # a streamed frame is due in a moment; it feeds the watchdog
-        gate = self.heartbeat_gate
-        if gate is not None and not gate():
-            return                  # the stream's loop is stalled: let the watchdog act
+        if self.may_heartbeat is not None and not self.may_heartbeat(now):
+            return
         try:
             # A lost heartbeat is sent again at once (a few times) so that one bad
             # frame on a noisy line does not look like a pulled cable.

@@ -227,6 +227,8 @@ class SerialDevice(DeviceBase):
         self._drive = wire.DRIVE_KINDS[profile.drive.kind]
         self._off = wire.OFF[self._drive]
         self._outputs: list[Setting] = [self._off] * (profile.rows * profile.cols)
+        # A host-streamed play's next frame (clock time): heartbeats keep clear of it.
+        self._next_send_at: float | None = None
         #: The device's clock on this computer's, from every heartbeat's ACK.
         self.clock_map = DeviceClock(host=self.clock)
 
@@ -248,13 +250,13 @@ class SerialDevice(DeviceBase):
             port.reset_input_buffer()
         except Exception:
             pass
+        self.clock_map.reset()                  # a device opened again may have restarted its clock
         link = Link(port, name=self.port, reply_timeout_s=self.reply_timeout_s,
-                    retries=self.retries, on_event=self._on_event, trace=self.trace,
-                    clock=self.clock)
+                    retries=self.retries, on_event=self._on_event,
+                    on_clock_sample=self.clock_map.add, may_heartbeat=self._may_heartbeat,
+                    trace=self.trace, clock=self.clock)
         self._link = link
         self._outputs = [self._off] * (self.profile.rows * self.profile.cols)
-        self.clock_map.reset()                  # a device opened again may have restarted its clock
-        link.clock_sample = self.clock_map.add
         link.start()
         try:
             self.hello = hello = self._handshake(link)
@@ -641,7 +643,7 @@ class SerialDevice(DeviceBase):
         try:
             for t_ms, changes, starting in groups:
                 target = t0 + t_ms / 1000.0
-                link.next_send_at = target
+                self._next_send_at = target
                 wait_until(target, self.clock, link, poll=poll)
                 applied = None
                 for msg in self._frames(state, changes):
@@ -659,7 +661,7 @@ class SerialDevice(DeviceBase):
                 for i in starting:
                     onsets[i] = applied
         finally:
-            link.next_send_at = None
+            self._next_send_at = None
         start_us = first_t_us or 0
         report = [PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
                               onset_ms=(t - start_us) / 1000.0, duration_ms=p.duration_ms,
@@ -672,17 +674,16 @@ class SerialDevice(DeviceBase):
         return float(self.hello.watchdog_ms) if self.hello is not None else float(
             self.watchdog_ms)
 
-    def _stream_started(self) -> None:
-        # Heartbeats only while the stream's loop checks in: a stalled host goes silent,
-        # and the device's watchdog switches everything off.
-        if self._link is not None:
-            limit = self.stream_checkin_ms / 1000.0
-            clock = self.clock
-            self._link.heartbeat_gate = lambda: clock.now() - self._alive_at < limit
-
-    def _stream_stopped(self) -> None:
-        if self._link is not None:
-            self._link.heartbeat_gate = None
+    def _may_heartbeat(self, now: float) -> bool:
+        """Whether the link may send a heartbeat now (its ``may_heartbeat``)."""
+        nxt = self._next_send_at
+        if nxt is not None and -0.001 < nxt - now < 0.005:
+            return False            # a streamed frame is due in a moment; it feeds the watchdog
+        if self._streaming and now - self._alive_at >= self.stream_checkin_ms / 1000.0:
+            # Heartbeats only while the stream's loop checks in: a stalled host goes
+            # silent, and the device's watchdog switches everything off.
+            return False
+        return True
 
     def _stream_checked_in(self) -> None:
         # A loop that stalled may find the session ended: say so at once.
