@@ -30,7 +30,6 @@ import random
 import select
 import threading
 import time
-import tty
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -123,6 +122,15 @@ class PtyEmulator:
 
     # -- lifecycle --------------------------------------------------------------------------
     def _open_pty(self) -> str:
+        try:
+            import tty
+        except ImportError:             # Windows
+            tty = None
+        if tty is None or not hasattr(os, "openpty"):
+            raise DeviceError("the emulated device (vtexp device emulate, --device emulator) "
+                              "needs a pseudo-terminal, which this system does not have (Linux "
+                              "and macOS do); rehearse with --device sim, or run on the real "
+                              "device: serial:PORT (e.g. serial:COM3)")
         master, slave = os.openpty()
         # Raw at once: a cooked pty would echo the device's bytes back to it and turn CR
         # into LF before the host's pyserial gets to set raw mode itself.
