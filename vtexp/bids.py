@@ -31,12 +31,8 @@ from typing import Any, Iterator
 
 from . import __version__
 from .errors import InputError
+from .lock import exclusive
 from .log import NA, fsync_dir, write_json_atomic
-
-try:
-    import fcntl
-except ImportError:             # Windows
-    fcntl = None
 
 BIDS_VERSION = "1.10.0"
 CODE_URL = "https://github.com/vtexp/vtexp"
@@ -256,16 +252,12 @@ def read_table(path: Path) -> tuple[list[str], list[dict[str, str]]]:
 @contextlib.contextmanager
 def _dataset_lock(root: Path) -> Iterator[None]:
     """One writer of the dataset's files at a time (sessions of several participants may
-    start at once in one data folder)."""
+    start at once in one data folder); :func:`vtexp.lock.exclusive` says how on each
+    platform."""
     folder = root / SOURCE
     folder.mkdir(parents=True, exist_ok=True)
-    fd = os.open(folder / ".dataset.lock", os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        if fcntl is not None:
-            fcntl.flock(fd, fcntl.LOCK_EX)
+    with exclusive(folder / ".dataset.lock", what=f"the dataset {root}"):
         yield
-    finally:
-        os.close(fd)                    # releases the flock
 
 
 def known_participant(root: Path | str, participant: str) -> dict[str, str] | None:

@@ -5,6 +5,10 @@ next trial starts, so a killed process (SIGKILL, power cut after the fsync)
 loses no completed trial; at worst the row being written is cut short, which
 readers detect (no final newline) and report. JSON records are replaced
 atomically (write to a temporary file, fsync, rename, fsync the folder).
+
+Files are written in binary with ``\n`` line ends on every platform (on Windows a file
+opened without ``O_BINARY`` would turn them into ``\r\n``), so a session's files are
+the same bytes wherever it ran.
 """
 
 from __future__ import annotations
@@ -20,9 +24,18 @@ from collections.abc import Iterable
 from .errors import SessionError
 
 NA = "n/a"   # BIDS's marker for a missing value
+_BINARY = getattr(os, "O_BINARY", 0)     # Windows: no newline translation
 
 
 def fsync_dir(path: Path) -> None:
+    """Make the names in folder ``path`` (a file created or renamed there) durable.
+
+    Windows cannot open a folder as a file to flush it; NTFS writes a rename to its
+    metadata journal, so after a crash the name is either the old file or the new one,
+    whole. There this does nothing.
+    """
+    if os.name == "nt":
+        return
     fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -51,8 +64,8 @@ class TsvLog:
         self.path = Path(path)
         self.columns = list(columns)
         try:
-            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND,
-                               0o644)
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND
+                               | _BINARY, 0o644)
         except FileExistsError:
             raise SessionError(f"{self.path} already exists; nothing was overwritten") from None
         except OSError as e:
@@ -83,7 +96,7 @@ class TsvLog:
         log = cls.__new__(cls)
         log.path, log.columns = path, columns
         try:
-            log._fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+            log._fd = os.open(path, os.O_WRONLY | os.O_APPEND | _BINARY)
             if removed:
                 os.ftruncate(log._fd, cut)
                 os.fsync(log._fd)
@@ -149,14 +162,32 @@ def write_json_atomic(path: Path, data: Any) -> None:
     tmp = tmp_name(path)
     text = json.dumps(data, indent=2, ensure_ascii=False, default=str) + "\n"
     try:
-        with open(tmp, "w", encoding="utf-8") as f:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        replace_file(tmp, path)
         fsync_dir(path.parent)
     except OSError as e:
         raise SessionError(f"cannot write {path}: {e.strerror or e}") from None
+
+
+def replace_file(src: Path, dst: Path) -> None:
+    """``os.replace``; on Windows, tried again for up to a second while another program
+    (a virus scanner, a reader of the record) has ``dst`` open, which Windows refuses."""
+    if os.name != "nt":
+        os.replace(src, dst)
+        return
+    import time
+    deadline = time.monotonic() + 1.0
+    while True:
+        try:
+            os.replace(src, dst)
+            return
+        except PermissionError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.02)
 
 
 def sha256_file(path: Path) -> str:

@@ -58,6 +58,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     signal.signal(signal.SIGTERM, _sigterm)     # turn the actuators off on 'kill' too
+    if hasattr(signal, "SIGBREAK"):             # Windows: Ctrl-Break would end us at once
+        signal.signal(signal.SIGBREAK, _sigterm)
     try:
         return args.func(args)
     except VtexpError as e:

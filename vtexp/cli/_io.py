@@ -15,24 +15,33 @@ def err(msg: str) -> None:
     print(f"vtexp: error: {msg}", file=sys.stderr, flush=True)
 
 
+def quote(arg: str) -> str:
+    """``arg`` as a command line to paste: for a POSIX shell, or for Windows' ``cmd.exe``
+    (which does not read single quotes)."""
+    if sys.platform == "win32":
+        import subprocess
+        return subprocess.list2cmdline([arg])
+    import shlex
+    return shlex.quote(arg)
+
+
 def program() -> str:
     """How to call vtexp again from any folder, the way it was called this time.
 
     ``vtexp`` if that is the command found on PATH, else the script's full path;
     ``python -m vtexp`` with this interpreter's full path when run that way.
     """
-    import shlex
     import shutil
     from pathlib import Path
 
     argv0 = Path(sys.argv[0]) if sys.argv and sys.argv[0] else None
     if argv0 is None or argv0.name in ("__main__.py", "-c") or argv0.suffix == ".py":
-        return f"{shlex.quote(sys.executable)} -m vtexp"
+        return f"{quote(sys.executable)} -m vtexp"
     found = shutil.which("vtexp")
     try:
         if found and Path(found).resolve() == argv0.resolve():
             return "vtexp"
     except OSError:
         pass
-    return shlex.quote(str(argv0.resolve())) if argv0.exists() else \
-        f"{shlex.quote(sys.executable)} -m vtexp"
+    return quote(str(argv0.resolve())) if argv0.exists() else \
+        f"{quote(sys.executable)} -m vtexp"

@@ -94,8 +94,18 @@ def cmd_list(args: argparse.Namespace) -> int:
         out(f"{'PORT':<{w}}  DESCRIPTION  (HARDWARE ID)")
         for p in ports:
             out(f"{p.device:<{w}}  {p.description}  ({p.hwid})")
-    out("No hardware? 'vtexp device emulate --profile pad_20x20' serves an emulated one.")
+    if _has_pty():
+        out("No hardware? 'vtexp device emulate --profile pad_20x20' serves an emulated one.")
+    else:                   # Windows: the emulator needs a pseudo-terminal
+        out("No hardware? 'vtexp run ... --device sim' runs a session on the simulated one.")
     return 0
+
+
+def _has_pty() -> bool:
+    """Whether this system has pseudo-terminals (what the emulator and the monitor serve)."""
+    import importlib.util
+    import os
+    return hasattr(os, "openpty") and importlib.util.find_spec("tty") is not None
 
 
 # --------------------------------------------------------------------------- check

@@ -15,14 +15,13 @@ complete and ready to paste.
 
 from __future__ import annotations
 
-import shlex
 import sys
 import time
 from datetime import datetime
 from pathlib import Path
 
 from ..errors import InputError
-from ._io import out, program
+from ._io import out, program, quote
 from .prompts import (ask_experimenter, ask_participant, ask_participant_info, ask_session,
                       place_object, status_of, yes)
 
@@ -90,7 +89,7 @@ def resume_command(file, participant: str, session: int, device: str | None,
     if responder:
         parts += ["--responder", responder]
     parts += ["--data", str(Path(data).resolve()), "--resume"]
-    return " ".join(parts[:1] + [shlex.quote(p) for p in parts[1:]])
+    return " ".join(parts[:1] + [quote(p) for p in parts[1:]])
 
 
 def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet, conds=None,

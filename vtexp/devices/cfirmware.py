@@ -18,7 +18,6 @@ and says what to install when a tool is missing.
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import os
 import shutil
@@ -90,6 +89,13 @@ def build(*targets: str) -> Path:
     Debian packages to install when a tool is missing, or with the compiler's message
     when the build fails.
     """
+    try:
+        import fcntl
+    except ImportError:                 # Windows
+        raise DeviceError("the reference firmware is built and run here with make, flock and "
+                          "pseudo-terminals, which this system does not have (Linux and macOS "
+                          "do): build and flash it there ('vtexp firmware flash'), then use "
+                          "the board here on serial:PORT (e.g. serial:COM3)") from None
     targets = targets or ("avr-all", "host", "sim")
     missing = _missing_tools(targets)
     if missing:

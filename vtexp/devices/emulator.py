@@ -290,8 +290,16 @@ class PtyEmulator(_Emulator):
 
     # -- lifecycle --------------------------------------------------------------------------
     def _open_pty(self) -> str:
-        import tty
-
+        try:
+            import tty
+        except ImportError:             # Windows
+            tty = None
+        if tty is None or not hasattr(os, "openpty"):
+            raise DeviceError("the emulated device on a pseudo-terminal (vtexp device emulate, "
+                              "--device emulator) needs one, which this system does not have "
+                              "(Linux and macOS do); rehearse in-process with --device "
+                              "emulator:virtual or --device sim, or run on the real device: "
+                              "serial:PORT (e.g. serial:COM3)")
         master, slave = os.openpty()
         # Raw at once: a cooked pty would echo the device's bytes back to it and turn CR
         # into LF before the host's pyserial gets to set raw mode itself.

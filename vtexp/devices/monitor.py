@@ -12,7 +12,6 @@ from __future__ import annotations
 import os
 import threading
 import time
-import tty
 from collections.abc import Callable
 from typing import Any, TextIO
 
@@ -49,6 +48,7 @@ class Tap:
         self._readers = {"to_device": wire.FrameReader(), "to_host": wire.FrameReader()}
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        import tty
         self.master, slave = os.openpty()
         tty.setraw(slave)
         self._slave = slave                   # kept open: the host may reconnect
@@ -124,6 +124,14 @@ class Tap:
 
 
 def open_tap(spec: str, baudrate: int, out: TextIO) -> Tap:
+    try:
+        import tty  # noqa: F401  (Tap needs it)
+    except ImportError:                 # Windows
+        tty = None
+    if tty is None or not hasattr(os, "openpty"):
+        raise DeviceError("vtexp device monitor needs a pseudo-terminal to stand in for the "
+                          "device, which this system does not have (Linux and macOS do); "
+                          "run the experiment directly on serial:PORT (e.g. serial:COM3)")
     import serial
 
     port_name = spec.partition(":")[2] if spec.startswith("serial:") else spec
