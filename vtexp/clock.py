@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -65,16 +66,22 @@ class Clock(Protocol):
         ...
 
 
+#: The computer's monotonic clock: ``time.monotonic``, but on Windows the performance
+#: counter (Python 3.11's monotonic clock ticks every 15.6 ms there; Lab Streaming
+#: Layer's ``local_clock`` reads the performance counter there too).
+_monotonic = time.perf_counter if sys.platform == "win32" else time.monotonic
+
+
 class RealClock:
-    """The computer's clocks: ``time.monotonic``, ``time.time``, ``time.sleep``."""
+    """The computer's clocks: its monotonic clock, ``time.time``, ``time.sleep``."""
 
     virtual = False
 
     def now(self) -> float:
-        return time.monotonic()
+        return _monotonic()
 
     def now_ms(self) -> float:
-        return time.monotonic() * 1000.0
+        return _monotonic() * 1000.0
 
     def wall(self) -> float:
         return time.time()
@@ -84,7 +91,7 @@ class RealClock:
             time.sleep(seconds)
 
     def sleep_until(self, t: float) -> None:
-        self.sleep(t - time.monotonic())
+        self.sleep(t - _monotonic())
 
     def wait_for(self, cond: threading.Condition, predicate: Callable[[], object],
                  timeout: float | None) -> bool:
