@@ -241,11 +241,64 @@ def test_a_run_without_delimiter_is_dropped_and_counted():
     (SetFrame(wire.DRIVE_LEVEL, ((0, Level(256)),)), "level=256"),
     (SetFrame(wire.DRIVE_LEVEL, ((70000, Level(1)),)), "actuator index=70000"),
     (SetFrame(wire.DRIVE_LEVEL, ((0, Train(1, 1, 1)),)), "Train setting in a message of drive"),
+    (SetFrame(3, ()), "unknown drive kind 3"),
+    (SetFrame(wire.DRIVE_LEVEL, ((0, Level(1)),) * 65536), "number of changes=65536"),
     (Trigger(1, -5), "at_us=-5"),
+    (Hello(256), "protocol=256"),
+    (UploadChunk(1, 0, wire.DRIVE_TRAIN, (WirePulse(2, 0, 10, Train(1, 2, 1.5)),)),
+     r"pulses\[0\] width_us=1.5"),
+    (OnsetsReply(1, 1, 0, (5, 2**64)), r"times_us\[1\]=18446744073709551616"),
+    (HelloReply(0, 1, 200, 200, 8, 6, 2, 1, 2, 0, 0, 0, 4096, 1024, 0, "x" * 256, ""),
+     "firmware: text of 256 bytes; at most 255 fit"),
 ])
 def test_values_that_do_not_fit_are_refused_when_encoding(msg, what):
     with pytest.raises(wire.PayloadError, match=what):
         wire.encode(msg, 0)
+
+
+def test_status_counters_wrap_at_their_width():
+    big = StatusReply(1, 0, 0, 0, 0, 2**32 + 5, 2**32, 7, 2**16 + 3)
+    wrapped = StatusReply(1, 0, 0, 0, 0, 5, 0, 7, 3)
+    assert wire.decode_frame(wire.encode(big, 0)[1:-1]) == (0, wrapped)
+
+
+@pytest.mark.parametrize("mtype, payload, what", [
+    (Hello.TYPE, "01c8", "HELLO: payload too short (2 bytes)"),
+    (Heartbeat.TYPE, "00", "HEARTBEAT: 1 unexpected trailing bytes"),
+    (SetFrame.TYPE, "0301000000", "SET_FRAME: unknown drive kind 3"),
+    (SetFrame.TYPE, "01", "SET_FRAME: payload too short (1 bytes)"),
+    (SetFrame.TYPE, "0102000001", "SET_FRAME: payload too short (5 bytes)"),
+    (SetFrame.TYPE, "01010000000101", "SET_FRAME: 1 unexpected trailing bytes"),
+    (SetFrameFull.TYPE, "020102", "SET_FRAME_FULL: payload is not a whole number of settings"),
+    (UploadChunk.TYPE, "0100000001" + "00" * 10, "UPLOAD_CHUNK: payload is not a whole number "
+     "of pulses"),
+    (UploadChunk.TYPE, "0100000009", "UPLOAD_CHUNK: unknown drive kind 9"),
+    (OnsetsReply.TYPE, "0001000000" + "00" * 7, "ONSETS_REPLY: payload is not a whole number "
+     "of times"),
+    (HelloReply.TYPE, "00" * 31 + "01ff00", "HELLO_REPLY: text is not UTF-8"),
+    (HelloReply.TYPE, "00" * 31 + "05414243", "HELLO_REPLY: payload too short (35 bytes)"),
+])
+def test_malformed_payloads_say_what_is_wrong(mtype, payload, what):
+    body = bytes([wire.PROTOCOL_VERSION, mtype, 9]) + bytes.fromhex(payload)
+    with pytest.raises(wire.PayloadError) as e:
+        wire.decode_frame(wire.cobs_encode(body + wire.CRC.pack(wire.crc32(body))))
+    assert str(e.value) == what and e.value.seq == 9
+
+
+def test_sizes_are_the_bytes_on_the_wire():
+    assert (Level.SIZE, Train.SIZE) == (1, 6)
+    for drive, setting in ((wire.DRIVE_LEVEL, Level(1)), (wire.DRIVE_TRAIN, Train(1, 2, 3))):
+        chunk = UploadChunk(1, 0, drive, (WirePulse(0, 0, 1, setting),) * 3)
+        assert len(chunk.pack()) == 5 + 3 * UploadChunk.pulse_size(drive)
+        assert UploadChunk.pulse_size(drive) == 10 + setting.SIZE
+
+
+def test_requests_and_replies_are_the_messages_docs_protocol_lists_as_such():
+    requests = {n for n, cls in wire.MESSAGES_BY_NAME.items() if cls.REQUEST}
+    replies = {n for n, cls in wire.MESSAGES_BY_NAME.items() if cls.REPLY}
+    assert requests == {"Hello", "Heartbeat", "AllOff", "SetFrame", "SetFrameFull", "UploadBegin",
+                        "UploadChunk", "Trigger", "Status", "GetOnsets", "Bye"}
+    assert replies == {"HelloReply", "Ack", "Nak", "StatusReply", "OnsetsReply"}
 
 
 def test_describe_is_one_readable_line():

@@ -16,15 +16,24 @@ zero always means "frame boundary" and a receiver that lost or gained bytes
 finds the next frame at the next zero. CRC-32 is the IEEE 802.3 polynomial
 (``zlib.crc32``; check value of ``b"123456789"`` is ``0xCBF43926``) over the
 header and payload. All integers are little-endian.
+
+Payloads are declared, not written out: each message is a dataclass whose
+fields carry their wire type in wire order (``ack_seq: u8``, ``firmware: text``,
+a run of settings or pulses), as the table of messages in ``docs/protocol.md``
+lists them, and one table-driven codec packs and unpacks them all.
 """
 
 from __future__ import annotations
 
+import operator
+import re
 import struct
 import zlib
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar
+from itertools import starmap
+from operator import attrgetter, itemgetter
+from typing import Annotated, Any, ClassVar, get_type_hints
 
 PROTOCOL_VERSION = 1
 PROTOCOL_NAME = f"vtexp-wire/{PROTOCOL_VERSION}"
@@ -128,137 +137,165 @@ def cobs_decode(data: bytes) -> bytes:
     return bytes(out)
 
 
+# --------------------------------------------------------------------------- wire types
+#
+# Every setting and message below is a frozen dataclass whose fields are annotated
+# with their wire type, in the order they stand on the wire (``ack_seq: u8``): the
+# classes are the table of docs/protocol.md's "Messages" section, declared once.
+# _Layout reads each class's row when the module loads and compiles it into
+# struct.Struct objects; one pack and one unpack serve every message.
+
+class UInt:
+    """An unsigned little-endian integer field: ``u8``, ``u16``, ``u32`` or ``u64``.
+
+    Parameters
+    ----------
+    code : str
+        Its :mod:`struct` format character: ``B``, ``H``, ``I`` or ``Q``.
+    wraps : bool
+        A counter, sent modulo its width rather than refused when it outgrows it
+        (``STATUS_REPLY``'s counters, "each wrapping at its width").
+    """
+
+    def __init__(self, code: str, wraps: bool = False):
+        self.struct = struct.Struct("<" + code)
+        self.code, self.wraps = code, wraps
+        self.name = f"u{8 * self.struct.size}"
+        self.max = (1 << 8 * self.struct.size) - 1
+
+    def __repr__(self) -> str:
+        return self.name + (" (wrapping)" if self.wraps else "")
+
+
+class Text:
+    """``len:u8`` and then that many bytes of UTF-8 (the protocol's ``str``)."""
+
+
+class DriveSetting:
+    """One setting, encoded as the message's ``drive`` field says (:data:`SETTINGS`)."""
+
+
+@dataclass(frozen=True)
+class Repeated:
+    """Items one after the other: ``count`` of them after a count field, or to the end.
+
+    Parameters
+    ----------
+    item : UInt, DriveSetting, tuple of (str, wire type), or a dataclass
+        One item: a bare value, a plain tuple (its parts named for error messages),
+        or a dataclass annotated like the messages; integers first, then the setting
+        if it holds one.
+    what : str
+        The items in the plural, for error messages.
+    count : UInt or None
+        The count written before the items; None: they run to the end of the payload.
+    """
+
+    item: Any
+    what: str
+    count: UInt | None = None
+
+
+U8, U16, U32, U64 = UInt("B"), UInt("H"), UInt("I"), UInt("Q")
+DRIVE_SETTING = DriveSetting()
+
+# The annotations the table is written in.
+u8 = Annotated[int, U8]
+u16 = Annotated[int, U16]
+u32 = Annotated[int, U32]
+u64 = Annotated[int, U64]
+wrapping_u16 = Annotated[int, UInt("H", wraps=True)]
+wrapping_u32 = Annotated[int, UInt("I", wraps=True)]
+text = Annotated[str, Text()]
+
+
+class _Wire:
+    """What every class with a row in the table has: its compiled layout."""
+
+    _LAYOUT: ClassVar[_Layout]
+
+    def pack(self) -> bytes:
+        """The bytes of this value on the wire (a message: its payload)."""
+        return self._LAYOUT.pack(self)
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> Any:
+        """Inverse of :meth:`pack`; raises :class:`PayloadError` on malformed bytes."""
+        return cls._LAYOUT.unpack(payload)
+
+
 # --------------------------------------------------------------------------- settings
 
 @dataclass(frozen=True)
-class Level:
+class Level(_Wire):
     """A vibration motor at an intensity level (0 = off); seed 000 Table 1, seed 001 §3.3."""
 
-    level: int
+    level: u8
 
     KIND: ClassVar[int] = DRIVE_LEVEL
-    SIZE: ClassVar[int] = 1
+    SIZE: ClassVar[int]                 # bytes on the wire, from the layout
 
     @property
     def is_off(self) -> bool:
         return self.level == 0
 
-    def pack(self) -> bytes:
-        return _pack("B", self.level, "level")
-
-    @classmethod
-    def unpack(cls, b: bytes) -> Level:
-        return cls(b[0])
-
 
 @dataclass(frozen=True)
-class Train:
+class Train(_Wire):
     """An SMA pin driven by a pulse train (seed 002 §3.3): 0 mV = off.
 
     Units are integers so that both ends agree bit for bit: millivolts,
     centi-hertz (0.01 Hz) and microseconds.
     """
 
-    amplitude_mv: int
-    frequency_chz: int
-    width_us: int
+    amplitude_mv: u16
+    frequency_chz: u16
+    width_us: u16
 
     KIND: ClassVar[int] = DRIVE_TRAIN
-    SIZE: ClassVar[int] = 6
+    SIZE: ClassVar[int]
 
     @property
     def is_off(self) -> bool:
         return self.amplitude_mv == 0
 
-    def pack(self) -> bytes:
-        return (_pack("<H", self.amplitude_mv, "amplitude_mv")
-                + _pack("<H", self.frequency_chz, "frequency_chz")
-                + _pack("<H", self.width_us, "width_us"))
-
-    @classmethod
-    def unpack(cls, b: bytes) -> Train:
-        return cls(*struct.unpack("<HHH", b))
-
 
 Setting = Level | Train
 SETTINGS: dict[int, type[Level | Train]] = {DRIVE_LEVEL: Level, DRIVE_TRAIN: Train}
 OFF: dict[int, Setting] = {DRIVE_LEVEL: Level(0), DRIVE_TRAIN: Train(0, 0, 0)}
+drive_setting = Annotated[Setting, DRIVE_SETTING]
 
 
-def _pack(fmt: str, value: int, name: str) -> bytes:
-    try:
-        return struct.pack(fmt, value)
-    except struct.error:
-        raise PayloadError(f"{name}={value!r} does not fit the wire field {fmt!r}") from None
+@dataclass(frozen=True)
+class WirePulse:
+    """One pulse of an uploaded schedule, in device units (µs from the trigger)."""
 
-
-def _setting_kind(settings: Iterable[Setting], kind: int) -> None:
-    cls = SETTINGS.get(kind)
-    if cls is None:
-        raise PayloadError(f"unknown drive kind {kind}")
-    for s in settings:
-        if not isinstance(s, cls):
-            raise PayloadError(f"a {type(s).__name__} setting in a message of drive kind {kind}")
+    index: u16
+    onset_us: u32
+    duration_us: u32
+    setting: drive_setting
 
 
 # --------------------------------------------------------------------------- messages
 
-class _Reader:
-    """Cursor over a payload that raises PayloadError instead of IndexError."""
+class Message(_Wire):
+    """Base of all v1 messages: ``TYPE`` on the wire, then the payload's fields.
 
-    def __init__(self, data: bytes, name: str):
-        self.data, self.i, self.name = data, 0, name
-
-    def take(self, fmt: str) -> Any:
-        s = struct.calcsize(fmt)
-        if self.i + s > len(self.data):
-            raise PayloadError(f"{self.name}: payload too short ({len(self.data)} bytes)")
-        v = struct.unpack_from(fmt, self.data, self.i)
-        self.i += s
-        return v[0] if len(v) == 1 else v
-
-    def raw(self, n: int) -> bytes:
-        if self.i + n > len(self.data):
-            raise PayloadError(f"{self.name}: payload too short ({len(self.data)} bytes)")
-        b = self.data[self.i:self.i + n]
-        self.i += n
-        return b
-
-    def text(self) -> str:
-        n = self.take("<B")
-        try:
-            return self.raw(n).decode("utf-8")
-        except UnicodeDecodeError:
-            raise PayloadError(f"{self.name}: text is not UTF-8") from None
-
-    def rest(self) -> int:
-        return len(self.data) - self.i
-
-    def end(self) -> None:
-        if self.i != len(self.data):
-            raise PayloadError(f"{self.name}: {len(self.data) - self.i} unexpected trailing bytes")
-
-
-def _text(s: str) -> bytes:
-    b = s.encode("utf-8")
-    if len(b) > 255:
-        raise PayloadError(f"text of {len(b)} bytes; at most 255 fit")
-    return bytes([len(b)]) + b
-
-
-class Message:
-    """Base of all v1 messages: ``TYPE`` on the wire, ``pack``/``unpack`` of the payload."""
+    A message's fields are annotated with their wire types in wire order; ``pack`` and
+    ``unpack`` follow them. ``REQUEST`` and ``REPLY`` follow from the type's range.
+    """
 
     TYPE: ClassVar[int]
+    NAME: ClassVar[str]                 # as docs/protocol.md names it: SetFrame -> SET_FRAME
     REQUEST: ClassVar[bool] = False     # host -> device, answered by exactly one reply
     REPLY: ClassVar[bool] = False       # device -> host, carries ack_seq
 
-    def pack(self) -> bytes:
-        raise NotImplementedError
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Message:
-        raise NotImplementedError
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.NAME = re.sub(r"(?<!^)(?=[A-Z])", "_", cls.__name__).upper()
+        # docs/protocol.md: types 0x01-0x3F are requests, 0x41-0x5F replies, 0x61-0x7F events
+        cls.REQUEST = 0x01 <= cls.TYPE <= 0x3F
+        cls.REPLY = 0x41 <= cls.TYPE <= 0x5F
 
     def to_dict(self) -> dict:
         d: dict[str, Any] = {"type": type(self).__name__}
@@ -298,52 +335,23 @@ class Hello(Message):
     """Open a session: the highest protocol the host speaks and the link timing it wants."""
 
     TYPE = 0x01
-    REQUEST = True
-    protocol: int = PROTOCOL_VERSION
-    heartbeat_ms: int = 200
-    watchdog_ms: int = 200
-
-    def pack(self) -> bytes:
-        return struct.pack("<BHH", self.protocol, self.heartbeat_ms, self.watchdog_ms)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Hello:
-        r = _Reader(payload, "HELLO")
-        m = cls(*r.take("<BHH"))
-        r.end()
-        return m
-
-
-class _NoPayload(Message):
-    """A message that is its type alone (an empty payload, checked to be empty)."""
-
-    LABEL: ClassVar[str]
-
-    def pack(self) -> bytes:
-        return b""
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> _NoPayload:
-        _Reader(payload, cls.LABEL).end()
-        return cls()
+    protocol: u8 = PROTOCOL_VERSION
+    heartbeat_ms: u16 = 200
+    watchdog_ms: u16 = 200
 
 
 @dataclass(frozen=True)
-class Heartbeat(_NoPayload):
+class Heartbeat(Message):
     """Keep the device's watchdog fed; the ACK's time also measures round trips."""
 
     TYPE = 0x02
-    REQUEST = True
-    LABEL = "HEARTBEAT"
 
 
 @dataclass(frozen=True)
-class AllOff(_NoPayload):
+class AllOff(Message):
     """Every actuator off at once; any play in progress is abandoned."""
 
     TYPE = 0x03
-    REQUEST = True
-    LABEL = "ALL_OFF"
 
 
 @dataclass(frozen=True)
@@ -351,27 +359,10 @@ class SetFrame(Message):
     """Sparse update: only the listed actuators change, all in the same instant."""
 
     TYPE = 0x04
-    REQUEST = True
-    drive: int
-    changes: tuple[tuple[int, Setting], ...]
-
-    def pack(self) -> bytes:
-        _setting_kind((s for _, s in self.changes), self.drive)
-        out = bytearray(struct.pack("<BH", self.drive, len(self.changes)))
-        for index, s in self.changes:
-            out += _pack("<H", index, "actuator index") + s.pack()
-        return bytes(out)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> SetFrame:
-        r = _Reader(payload, "SET_FRAME")
-        drive, n = r.take("<BH")
-        scls = SETTINGS.get(drive)
-        if scls is None:
-            raise PayloadError(f"SET_FRAME: unknown drive kind {drive}")
-        changes = tuple((r.take("<H"), scls.unpack(r.raw(scls.SIZE))) for _ in range(n))
-        r.end()
-        return cls(drive, changes)
+    drive: u8
+    changes: Annotated[tuple[tuple[int, Setting], ...],
+                       Repeated((("actuator index", U16), ("setting", DRIVE_SETTING)),
+                                "changes", count=U16)]
 
 
 @dataclass(frozen=True)
@@ -379,35 +370,8 @@ class SetFrameFull(Message):
     """Dense update: a setting for every actuator, row-major (index = row * cols + col)."""
 
     TYPE = 0x05
-    REQUEST = True
-    drive: int
-    settings: tuple[Setting, ...]
-
-    def pack(self) -> bytes:
-        _setting_kind(self.settings, self.drive)
-        return bytes([self.drive]) + b"".join(s.pack() for s in self.settings)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> SetFrameFull:
-        r = _Reader(payload, "SET_FRAME_FULL")
-        drive = r.take("<B")
-        scls = SETTINGS.get(drive)
-        if scls is None:
-            raise PayloadError(f"SET_FRAME_FULL: unknown drive kind {drive}")
-        if r.rest() % scls.SIZE:
-            raise PayloadError("SET_FRAME_FULL: payload is not a whole number of settings")
-        n = r.rest() // scls.SIZE
-        return cls(drive, tuple(scls.unpack(r.raw(scls.SIZE)) for _ in range(n)))
-
-
-@dataclass(frozen=True)
-class WirePulse:
-    """One pulse of an uploaded schedule, in device units (µs from the trigger)."""
-
-    index: int
-    onset_us: int
-    duration_us: int
-    setting: Setting
+    drive: u8
+    settings: Annotated[tuple[Setting, ...], Repeated(DRIVE_SETTING, "settings")]
 
 
 @dataclass(frozen=True)
@@ -415,21 +379,9 @@ class UploadBegin(Message):
     """Announce a schedule of ``n_pulses`` pulses (sorted by onset) under ``play_id``."""
 
     TYPE = 0x06
-    REQUEST = True
-    play_id: int
-    n_pulses: int
-    drive: int
-
-    def pack(self) -> bytes:
-        return (_pack("<H", self.play_id, "play_id") + _pack("<H", self.n_pulses, "n_pulses")
-                + _pack("<B", self.drive, "drive"))
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> UploadBegin:
-        r = _Reader(payload, "UPLOAD_BEGIN")
-        m = cls(*r.take("<HHB"))
-        r.end()
-        return m
+    play_id: u16
+    n_pulses: u16
+    drive: u8
 
 
 @dataclass(frozen=True)
@@ -437,39 +389,15 @@ class UploadChunk(Message):
     """Pulses ``first .. first + len(pulses) - 1`` of the schedule being uploaded."""
 
     TYPE = 0x07
-    REQUEST = True
-    play_id: int
-    first: int
-    drive: int
-    pulses: tuple[WirePulse, ...]
-
-    def pack(self) -> bytes:
-        _setting_kind((p.setting for p in self.pulses), self.drive)
-        out = bytearray(struct.pack("<HHB", self.play_id, self.first, self.drive))
-        for p in self.pulses:
-            out += (_pack("<H", p.index, "actuator index") + _pack("<I", p.onset_us, "onset_us")
-                    + _pack("<I", p.duration_us, "duration_us") + p.setting.pack())
-        return bytes(out)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> UploadChunk:
-        r = _Reader(payload, "UPLOAD_CHUNK")
-        play_id, first, drive = r.take("<HHB")
-        scls = SETTINGS.get(drive)
-        if scls is None:
-            raise PayloadError(f"UPLOAD_CHUNK: unknown drive kind {drive}")
-        size = 10 + scls.SIZE
-        if r.rest() % size:
-            raise PayloadError("UPLOAD_CHUNK: payload is not a whole number of pulses")
-        pulses = []
-        for _ in range(r.rest() // size):
-            index, onset, dur = r.take("<HII")
-            pulses.append(WirePulse(index, onset, dur, scls.unpack(r.raw(scls.SIZE))))
-        return cls(play_id, first, drive, tuple(pulses))
+    play_id: u16
+    first: u16
+    drive: u8
+    pulses: Annotated[tuple[WirePulse, ...], Repeated(WirePulse, "pulses")]
 
     @staticmethod
     def pulse_size(drive: int) -> int:
-        return 10 + SETTINGS[drive].SIZE
+        """Bytes of one pulse with settings of ``drive`` (a :data:`DRIVE_KINDS` value)."""
+        return UploadChunk._LAYOUT.item_size("pulses", drive)
 
 
 @dataclass(frozen=True)
@@ -477,35 +405,20 @@ class Trigger(Message):
     """Start the uploaded schedule at device time ``at_us`` (0: as soon as received)."""
 
     TYPE = 0x08
-    REQUEST = True
-    play_id: int
-    at_us: int = 0
-
-    def pack(self) -> bytes:
-        return _pack("<H", self.play_id, "play_id") + _pack("<Q", self.at_us, "at_us")
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Trigger:
-        r = _Reader(payload, "TRIGGER")
-        m = cls(*r.take("<HQ"))
-        r.end()
-        return m
+    play_id: u16
+    at_us: u64 = 0
 
 
 @dataclass(frozen=True)
-class Status(_NoPayload):
+class Status(Message):
     TYPE = 0x09
-    REQUEST = True
-    LABEL = "STATUS"
 
 
 @dataclass(frozen=True)
-class Bye(_NoPayload):
+class Bye(Message):
     """The host is leaving: everything off and the session ends, without a watchdog alarm."""
 
     TYPE = 0x0B
-    REQUEST = True
-    LABEL = "BYE"
 
 
 @dataclass(frozen=True)
@@ -513,20 +426,9 @@ class GetOnsets(Message):
     """Ask again for onsets the host missed (their ONSET events were lost)."""
 
     TYPE = 0x0A
-    REQUEST = True
-    play_id: int
-    first: int
-    count: int
-
-    def pack(self) -> bytes:
-        return struct.pack("<HHH", self.play_id, self.first, self.count)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> GetOnsets:
-        r = _Reader(payload, "GET_ONSETS")
-        m = cls(*r.take("<HHH"))
-        r.end()
-        return m
+    play_id: u16
+    first: u16
+    count: u16
 
 
 # -- device -> host: replies -----------------------------------------------------------------
@@ -536,41 +438,23 @@ class HelloReply(Message):
     """What the device is: protocol, firmware, geometry, drive and capacities."""
 
     TYPE = 0x41
-    REPLY = True
-    ack_seq: int
-    protocol: int
-    heartbeat_ms: int
-    watchdog_ms: int
-    rows: int
-    cols: int
-    actuator: int
-    drive: int
-    max_level: int
-    max_amplitude_mv: int
-    max_frequency_chz: int
-    max_width_us: int
-    max_pulses: int
-    max_payload: int
-    now_us: int
-    firmware: str
-    device_id: str
-
-    _FMT: ClassVar[str] = "<BBHHHHBBBHHHHHQ"
-
-    def pack(self) -> bytes:
-        return (struct.pack(self._FMT, self.ack_seq, self.protocol, self.heartbeat_ms,
-                            self.watchdog_ms, self.rows, self.cols, self.actuator, self.drive,
-                            self.max_level, self.max_amplitude_mv, self.max_frequency_chz,
-                            self.max_width_us, self.max_pulses, self.max_payload, self.now_us)
-                + _text(self.firmware) + _text(self.device_id))
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> HelloReply:
-        r = _Reader(payload, "HELLO_REPLY")
-        head = r.take(cls._FMT)
-        m = cls(*head, r.text(), r.text())
-        r.end()
-        return m
+    ack_seq: u8
+    protocol: u8
+    heartbeat_ms: u16
+    watchdog_ms: u16
+    rows: u16
+    cols: u16
+    actuator: u8
+    drive: u8
+    max_level: u8
+    max_amplitude_mv: u16
+    max_frequency_chz: u16
+    max_width_us: u16
+    max_pulses: u16
+    max_payload: u16
+    now_us: u64
+    firmware: text
+    device_id: text
 
 
 @dataclass(frozen=True)
@@ -578,19 +462,8 @@ class Ack(Message):
     """Request ``ack_seq`` done; ``t_us`` is the device time at which it took effect."""
 
     TYPE = 0x42
-    REPLY = True
-    ack_seq: int
-    t_us: int
-
-    def pack(self) -> bytes:
-        return struct.pack("<BQ", self.ack_seq, self.t_us)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Ack:
-        r = _Reader(payload, "ACK")
-        m = cls(*r.take("<BQ"))
-        r.end()
-        return m
+    ack_seq: u8
+    t_us: u64
 
 
 class NakReason:
@@ -618,20 +491,9 @@ NakReason.NAMES = {v: k for k, v in vars(NakReason).items() if isinstance(v, int
 @dataclass(frozen=True)
 class Nak(Message):
     TYPE = 0x43
-    REPLY = True
-    ack_seq: int
-    reason: int
-    detail: int = 0
-
-    def pack(self) -> bytes:
-        return struct.pack("<BBH", self.ack_seq, self.reason, self.detail)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Nak:
-        r = _Reader(payload, "NAK")
-        m = cls(*r.take("<BBH"))
-        r.end()
-        return m
+    ack_seq: u8
+    reason: u8
+    detail: u16 = 0
 
     @property
     def reason_name(self) -> str:
@@ -649,30 +511,15 @@ class DeviceState:
 @dataclass(frozen=True)
 class StatusReply(Message):
     TYPE = 0x44
-    REPLY = True
-    ack_seq: int
-    state: int
-    play_id: int
-    n_onsets: int
-    now_us: int
-    rx_frames: int
-    rx_bad: int
-    duplicates: int
-    watchdog_trips: int
-
-    _FMT: ClassVar[str] = "<BBHHQIIIH"
-
-    def pack(self) -> bytes:
-        return struct.pack(self._FMT, self.ack_seq, self.state, self.play_id, self.n_onsets,
-                           self.now_us, self.rx_frames & 0xFFFFFFFF, self.rx_bad & 0xFFFFFFFF,
-                           self.duplicates & 0xFFFFFFFF, self.watchdog_trips & 0xFFFF)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> StatusReply:
-        r = _Reader(payload, "STATUS_REPLY")
-        m = cls(*r.take(cls._FMT))
-        r.end()
-        return m
+    ack_seq: u8
+    state: u8
+    play_id: u16
+    n_onsets: u16
+    now_us: u64
+    rx_frames: wrapping_u32
+    rx_bad: wrapping_u32
+    duplicates: wrapping_u32
+    watchdog_trips: wrapping_u16
 
 
 @dataclass(frozen=True)
@@ -680,23 +527,10 @@ class OnsetsReply(Message):
     """Device time of each pulse's onset from ``first`` on (:data:`NOT_PLAYED` if none)."""
 
     TYPE = 0x45
-    REPLY = True
-    ack_seq: int
-    play_id: int
-    first: int
-    times_us: tuple[int, ...]
-
-    def pack(self) -> bytes:
-        return (struct.pack("<BHH", self.ack_seq, self.play_id, self.first)
-                + b"".join(_pack("<Q", t, "onset time") for t in self.times_us))
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> OnsetsReply:
-        r = _Reader(payload, "ONSETS_REPLY")
-        ack, play_id, first = r.take("<BHH")
-        if r.rest() % 8:
-            raise PayloadError("ONSETS_REPLY: payload is not a whole number of times")
-        return cls(ack, play_id, first, tuple(r.take("<Q") for _ in range(r.rest() // 8)))
+    ack_seq: u8
+    play_id: u16
+    first: u16
+    times_us: Annotated[tuple[int, ...], Repeated(U64, "times")]
 
 
 # -- device -> host: events ------------------------------------------------------------------
@@ -706,20 +540,10 @@ class Onset(Message):
     """Pulses ``first .. first + count - 1`` of ``play_id`` started at device time ``t_us``."""
 
     TYPE = 0x61
-    play_id: int
-    first: int
-    count: int
-    t_us: int
-
-    def pack(self) -> bytes:
-        return struct.pack("<HHHQ", self.play_id, self.first, self.count, self.t_us)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Onset:
-        r = _Reader(payload, "ONSET")
-        m = cls(*r.take("<HHHQ"))
-        r.end()
-        return m
+    play_id: u16
+    first: u16
+    count: u16
+    t_us: u64
 
 
 class DoneReason:
@@ -733,20 +557,10 @@ class DoneReason:
 @dataclass(frozen=True)
 class PlayDone(Message):
     TYPE = 0x62
-    play_id: int
-    reason: int
-    n_onsets: int
-    t_us: int
-
-    def pack(self) -> bytes:
-        return struct.pack("<HBHQ", self.play_id, self.reason, self.n_onsets, self.t_us)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> PlayDone:
-        r = _Reader(payload, "PLAY_DONE")
-        m = cls(*r.take("<HBHQ"))
-        r.end()
-        return m
+    play_id: u16
+    reason: u8
+    n_onsets: u16
+    t_us: u64
 
 
 class AlarmCode:
@@ -757,18 +571,8 @@ class AlarmCode:
 @dataclass(frozen=True)
 class Alarm(Message):
     TYPE = 0x63
-    code: int
-    t_us: int
-
-    def pack(self) -> bytes:
-        return struct.pack("<BQ", self.code, self.t_us)
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Alarm:
-        r = _Reader(payload, "ALARM")
-        m = cls(*r.take("<BQ"))
-        r.end()
-        return m
+    code: u8
+    t_us: u64
 
 
 MESSAGES: dict[int, type[Message]] = {
@@ -779,13 +583,311 @@ MESSAGES_BY_NAME: dict[str, type[Message]] = {c.__name__: c for c in MESSAGES.va
 _PLAIN: dict[str, type] = {"Level": Level, "Train": Train, "WirePulse": WirePulse}
 
 
+# --------------------------------------------------------------------------- layouts
+#
+# Speed matters: a live stream encodes a frame at every change and the emulated
+# firmware decodes each one. So a layout packs a message's fixed fields with one
+# Struct call and lets map, zip and starmap walk a run's items in C (_Items); only
+# when struct refuses a value does it walk the fields to say which one.
+
+def _wire_fields(cls: type) -> list[tuple[str, Any]]:
+    """``(name, wire type)`` of each field of the dataclass ``cls``, in wire order."""
+    hints = get_type_hints(cls, include_extras=True)
+    out = []
+    for f in fields(cls):
+        wire_type = next((m for m in getattr(hints[f.name], "__metadata__", ())
+                          if isinstance(m, (UInt, Text, DriveSetting, Repeated))), None)
+        if wire_type is None:
+            raise TypeError(f"{cls.__name__}.{f.name} is not annotated with a wire type")
+        out.append((f.name, wire_type))
+    return out
+
+
+def _values(names: list[str]) -> Callable[[Any], tuple]:
+    """The named attributes of an object, as a tuple (``attrgetter`` returns a bare one)."""
+    if len(names) == 1:
+        get = attrgetter(names[0])
+        return lambda x: (get(x),)
+    return attrgetter(*names) if names else lambda x: ()
+
+
+def _item_parts(item: Any) -> list[tuple[str, Any]]:
+    """``(label, wire type)`` of each part of a :attr:`Repeated.item` ("" for a bare one)."""
+    if isinstance(item, type):
+        return _wire_fields(item)
+    return list(item) if isinstance(item, tuple) else [("", item)]
+
+
+def _fits(t: UInt, v: Any) -> bool:
+    try:
+        return t.wraps or 0 <= operator.index(v) <= t.max
+    except TypeError:
+        return False
+
+
+class _Items:
+    """A run's :attr:`Repeated.item` compiled, with settings of the class ``setting``.
+
+    Packing flattens each item into the values of its Struct; unpacking goes a column
+    at a time (each integer of the items, each field of their settings) so that map
+    and zip walk the items in C. Items of one integer each (onset times, levels) take
+    one struct call for the whole run.
+    """
+
+    def __init__(self, item: Any, setting: type[Level | Train] | None):
+        parts = _item_parts(item)
+        ints = [(label, t) for label, t in parts if isinstance(t, UInt)]
+        k, self.ints, self.setting = len(ints), ints, setting
+        if parts[:k] != ints or len(parts) != k + (setting is not None) or not (
+                setting or isinstance(item, UInt)):
+            raise TypeError(f"{item!r}: v1's runs hold bare integers, or integers and then "
+                            "one setting of the drive kind")
+        s_names = [name for name, _ in setting._LAYOUT.head_fields] if setting else []
+        self.codes = "".join(t.code for _, t in ints) + (setting._LAYOUT.head.format[1:]
+                                                         if setting else "")
+        self.struct = struct.Struct("<" + self.codes)
+        self.size = self.struct.size
+        # ints_of and setting_of take an item apart (setting_of None: the item is the
+        # setting, or holds none); combine puts the columns back together into items.
+        self.setting_of: Callable[[Any], Setting] | None = None
+        if isinstance(item, type):                                # UploadChunk.pulses
+            self.ints_of = _values([label for label, _ in ints])
+            self.setting_of = attrgetter(parts[k][0])
+            self.combine: Callable[..., Iterable[Any]] = lambda *cols: map(item, *cols)
+        elif isinstance(item, tuple):                             # SetFrame.changes
+            self.ints_of = itemgetter(slice(0, k))
+            self.setting_of, self.combine = itemgetter(k), zip
+        else:                                                     # OnsetsReply.times_us,
+            self.ints_of = (lambda x: (x,)) if k else (lambda x: ())   # SetFrameFull.settings
+            self.combine = lambda col: col
+        # flat: an item -> the values of its Struct, with one Python call at most
+        ints_of, setting_of = self.ints_of, self.setting_of
+        if setting is None:
+            self.flat = ints_of
+        elif setting_of is None:
+            self.flat = _values(s_names)
+        elif len(s_names) == 1:
+            get = attrgetter(s_names[0])
+            self.flat = lambda x: (*ints_of(x), get(setting_of(x)))
+        else:
+            gets = attrgetter(*s_names)
+            self.flat = lambda x: (*ints_of(x), *gets(setting_of(x)))
+        self.single = len(self.codes) == 1
+        self.single_get = attrgetter(s_names[0]) if self.single and setting else None
+
+    def settings(self, items: Iterable[Any]) -> Iterable[Setting]:
+        """The settings that ``items`` hold."""
+        if self.setting is None:
+            return ()
+        return items if self.setting_of is None else map(self.setting_of, items)
+
+    def pack(self, items: Sequence[Any], where: str) -> bytes:
+        try:
+            if self.single:
+                values = map(self.single_get, items) if self.single_get else items
+                return struct.pack(f"<{len(items)}{self.codes}", *values)
+            return b"".join(starmap(self.struct.pack, map(self.flat, items)))
+        except AttributeError:
+            # A setting of another kind lacks the fields read (checking every item
+            # first would cost more than the packing), so say which it was.
+            for s in self.settings(items):
+                if not isinstance(s, self.setting):         # type: ignore[arg-type]
+                    raise PayloadError(f"{where}: a {type(s).__name__} setting in a message "
+                                       f"of drive kind {self.setting.KIND}") from None
+            raise
+
+    def unpack(self, data: bytes) -> tuple:
+        n = len(data) // self.size
+        if self.single:
+            cols: list[Iterable[Any]] = [struct.unpack(f"<{n}{self.codes}", data)]
+        else:
+            cols = list(zip(*self.struct.iter_unpack(data))) if n else [()] * len(self.codes)
+        if self.setting:
+            k = len(self.ints)
+            cols[k:] = [map(self.setting, *cols[k:])]
+        return tuple(self.combine(*cols))
+
+    def leaves(self, x: Any, where: str) -> Iterator[tuple[str, UInt, Any]]:
+        """``(name, type, value)`` of every integer of the item ``x``."""
+        for (label, t), v in zip(self.ints, self.ints_of(x)):
+            yield f"{where} {label}".rstrip(), t, v
+        for s in self.settings((x,)):
+            yield from s._LAYOUT.leaves(s, where + " ")
+
+
+class _Text:
+    """A :class:`Text` field compiled."""
+
+    def __init__(self, layout: _Layout, name: str):
+        self.layout, self.name, self.get = layout, name, attrgetter(name)
+
+    def pack(self, obj: Any) -> bytes:
+        b = self.get(obj).encode("utf-8")
+        if len(b) > 255:
+            raise PayloadError(f"{self.layout.cls.__name__}: {self.name}: text of {len(b)} "
+                               "bytes; at most 255 fit")
+        return bytes([len(b)]) + b
+
+    def unpack(self, payload: bytes, i: int, values: list) -> int:
+        end = i + 1 + (payload[i] if i < len(payload) else 0)
+        if end > len(payload):
+            raise self.layout.too_short(len(payload))
+        try:
+            values.append(str(payload[i + 1:end], "utf-8"))
+        except UnicodeDecodeError:
+            raise PayloadError(f"{self.layout.name}: text is not UTF-8") from None
+        return end
+
+    def leaves(self, obj: Any, where: str) -> Iterator[tuple[str, UInt, Any]]:
+        return iter(())
+
+
+class _Run:
+    """A :class:`Repeated` field compiled: its count, its items for each drive kind."""
+
+    def __init__(self, layout: _Layout, name: str, rep: Repeated):
+        self.layout, self.name, self.get, self.rep = layout, name, attrgetter(name), rep
+        self.where = layout.cls.__name__            # as encoding errors name the message
+        self.count = rep.count.struct if rep.count else None
+        self.drive_at: int | None = None
+        self.by_drive: dict[int | None, _Items] = {}
+        if not any(isinstance(t, DriveSetting) for _, t in _item_parts(rep.item)):
+            self.by_drive[None] = _Items(rep.item, None)
+        elif "drive" in layout.head_names:
+            self.drive_at = layout.head_names.index("drive")
+            self.by_drive = {kind: _Items(rep.item, s) for kind, s in SETTINGS.items()}
+        else:
+            raise TypeError(f"{layout.cls.__name__}.{name}: settings, but no drive field "
+                            "before them says which")
+
+    def items(self, drive: int | None, where: str) -> _Items:
+        """The items for the drive kind ``drive`` (None: a run without settings)."""
+        found = self.by_drive.get(drive)
+        if found is None:
+            raise PayloadError(f"{where}: unknown drive kind {drive}")
+        return found
+
+    def pack(self, obj: Any) -> bytes:
+        v = self.get(obj)
+        items = self.items(None if self.drive_at is None else obj.drive, self.where)
+        return (self.count.pack(len(v)) if self.count else b"") + items.pack(v, self.where)
+
+    def unpack(self, payload: bytes, i: int, values: list) -> int:
+        n, count = len(payload), None
+        if self.count:                  # read before the drive kind is looked at
+            if i + self.count.size > n:
+                raise self.layout.too_short(n)
+            (count,) = self.count.unpack_from(payload, i)
+            i += self.count.size
+        items = self.items(None if self.drive_at is None else values[self.drive_at],
+                           self.layout.name)
+        if count is not None:
+            end = i + count * items.size
+            if end > n:
+                raise self.layout.too_short(n)
+        elif (n - i) % items.size:
+            raise PayloadError(f"{self.layout.name}: payload is not a whole number of "
+                               f"{self.rep.what}")
+        else:
+            end = n
+        values.append(items.unpack(payload[i:end]))
+        return end
+
+    def leaves(self, obj: Any, where: str) -> Iterator[tuple[str, UInt, Any]]:
+        v = self.get(obj)
+        if self.rep.count:
+            yield f"{where}number of {self.name}", self.rep.count, len(v)
+        items = self.items(None if self.drive_at is None else obj.drive, self.where)
+        for j, x in enumerate(v):
+            yield from items.leaves(x, f"{where}{self.name}[{j}]")
+
+
+class _Layout:
+    """The row of ``cls`` compiled: fixed fields, then texts and runs of items."""
+
+    def __init__(self, cls: type):
+        self.cls, self.name = cls, getattr(cls, "NAME", cls.__name__)
+        fields_ = _wire_fields(cls)
+        k = next((i for i, (_, t) in enumerate(fields_) if not isinstance(t, UInt)),
+                 len(fields_))
+        self.head_fields = fields_[:k]
+        self.head_names = [n for n, _ in self.head_fields]
+        self.head = struct.Struct("<" + "".join(t.code for _, t in self.head_fields))
+        self.values = _values(self.head_names)
+        if any(t.wraps for _, t in self.head_fields):
+            get, masks = self.values, [t.max if t.wraps else -1 for _, t in self.head_fields]
+            self.values = lambda x: tuple(map(operator.and_, get(x), masks))
+        self.tail: list[_Text | _Run] = []
+        for j, (name, t) in enumerate(fields_[k:], k):
+            if isinstance(t, Text):
+                self.tail.append(_Text(self, name))
+            elif isinstance(t, Repeated) and (t.count or j == len(fields_) - 1):
+                self.tail.append(_Run(self, name, t))
+            else:
+                raise TypeError(f"{cls.__name__}.{name}: v1 has integers first, then texts "
+                                "and runs of items, a run to the end of the payload last")
+
+    def item_size(self, name: str, drive: int | None = None) -> int:
+        """Bytes of one item of the run ``name``, with settings of ``drive``."""
+        run = next(p for p in self.tail if isinstance(p, _Run) and p.name == name)
+        return run.by_drive[drive].size
+
+    def pack(self, obj: Any) -> bytes:
+        try:
+            out = self.head.pack(*self.values(obj))
+            for part in self.tail:
+                out += part.pack(obj)
+            return out
+        except struct.error as e:
+            for name, t, v in self.leaves(obj, f"{self.cls.__name__}: "):
+                if not _fits(t, v):
+                    raise PayloadError(f"{name}={v!r} does not fit the wire field {t.name} "
+                                       f"(a whole number from 0 to {t.max})") from None
+            raise PayloadError(f"{self.cls.__name__}: {e}") from None
+
+    def leaves(self, obj: Any, where: str) -> Iterator[tuple[str, UInt, Any]]:
+        """``(name, type, value)`` of every integer of ``obj``, counts of runs included."""
+        for name, t in self.head_fields:
+            yield where + name, t, getattr(obj, name)
+        for part in self.tail:
+            yield from part.leaves(obj, where)
+
+    def unpack(self, payload: bytes) -> Any:
+        n, i = len(payload), self.head.size
+        if not self.tail:
+            if n != i:
+                raise self.too_short(n) if n < i else self.trailing(n - i)
+            return self.cls(*self.head.unpack(payload))
+        if n < i:
+            raise self.too_short(n)
+        values = list(self.head.unpack_from(payload))
+        for part in self.tail:
+            i = part.unpack(payload, i, values)
+        if i != n:
+            raise self.trailing(n - i)
+        return self.cls(*values)
+
+    def too_short(self, n: int) -> PayloadError:
+        return PayloadError(f"{self.name}: payload too short ({n} bytes)")
+
+    def trailing(self, extra: int) -> PayloadError:
+        return PayloadError(f"{self.name}: {extra} unexpected trailing bytes")
+
+
+for _cls in (Level, Train, *MESSAGES.values()):
+    _cls._LAYOUT = _Layout(_cls)
+for _setting in SETTINGS.values():
+    _setting.SIZE = _setting._LAYOUT.head.size
+del _cls, _setting
+
+
 # --------------------------------------------------------------------------- frames
 
 def frame_body(msg: Message, seq: int) -> bytes:
     """Header + payload + CRC, before COBS (what the CRC and the vectors' ``raw`` cover)."""
     if not 0 <= seq <= 255:
         raise PayloadError(f"sequence number {seq} is not a byte")
-    head = HEADER.pack(PROTOCOL_VERSION, msg.TYPE, seq) + msg.pack()
+    head = HEADER.pack(PROTOCOL_VERSION, msg.TYPE, seq) + msg._LAYOUT.pack(msg)
     return head + CRC.pack(crc32(head))
 
 
@@ -821,7 +923,7 @@ def decode_frame(encoded: bytes, max_len: int = MAX_FRAME) -> tuple[int, Message
         err.mtype = mtype           # type: ignore[attr-defined]
         raise err
     try:
-        return seq, cls.unpack(body[HEADER.size:])
+        return seq, cls._LAYOUT.unpack(body[HEADER.size:])
     except PayloadError as e:
         e.seq = seq                 # type: ignore[attr-defined]
         raise
