@@ -525,17 +525,28 @@ static void do_status(uint8_t seq)
     frame_end();
 }
 
+/* Refusals that several requests share; each is nonzero once its NAK is sent. */
+static uint8_t refused_while_playing(uint8_t seq)
+{
+    if (!S.playing)
+        return 0;
+    send_nak(seq, VT_NAK_BUSY, S.play_id);
+    return 1;
+}
+
+static uint8_t refused_for_drive(uint8_t seq, uint8_t drive)
+{
+    if (drive == S.cfg->drive)
+        return 0;
+    send_nak(seq, VT_NAK_WRONG_DRIVE, S.cfg->drive);
+    return 1;
+}
+
 static void do_set_frame(uint8_t seq, uint8_t type, const uint8_t *p, uint16_t plen)
 {
     uint8_t drive = p[0];
-    if (S.playing) {
-        send_nak(seq, VT_NAK_BUSY, S.play_id);
+    if (refused_while_playing(seq) || refused_for_drive(seq, drive))
         return;
-    }
-    if (drive != S.cfg->drive) {
-        send_nak(seq, VT_NAK_WRONG_DRIVE, S.cfg->drive);
-        return;
-    }
     uint8_t size = setting_size(drive);
     uint16_t count;
     const uint8_t *q;
@@ -577,14 +588,8 @@ static void do_upload_begin(uint8_t seq, const uint8_t *p)
 {
     uint16_t pid = rd16(p), n = rd16(p + 2);
     uint8_t drive = p[4];
-    if (S.playing) {
-        send_nak(seq, VT_NAK_BUSY, S.play_id);
+    if (refused_while_playing(seq) || refused_for_drive(seq, drive))
         return;
-    }
-    if (drive != S.cfg->drive) {
-        send_nak(seq, VT_NAK_WRONG_DRIVE, S.cfg->drive);
-        return;
-    }
     if (n > S.cfg->max_pulses) {
         send_nak(seq, VT_NAK_TOO_LARGE, S.cfg->max_pulses);
         return;
@@ -615,10 +620,8 @@ static void do_upload_chunk(uint8_t seq, const uint8_t *p, uint16_t plen)
         send_nak(seq, VT_NAK_NO_SCHEDULE, pid);
         return;
     }
-    if (drive != S.cfg->drive) {
-        send_nak(seq, VT_NAK_WRONG_DRIVE, S.cfg->drive);
+    if (refused_for_drive(seq, drive))
         return;
-    }
     if (first != S.up_got) {
         send_nak(seq, VT_NAK_OUT_OF_ORDER, S.up_got);
         return;
@@ -666,10 +669,8 @@ static void do_trigger(uint8_t seq, const uint8_t *p)
 {
     uint16_t pid = rd16(p);
     uint64_t at = rd64(p + 2);
-    if (S.playing) {
-        send_nak(seq, VT_NAK_BUSY, S.play_id);
+    if (refused_while_playing(seq))
         return;
-    }
     if (!S.loaded || S.loaded_id != pid) {
         send_nak(seq, VT_NAK_NO_SCHEDULE, pid);
         return;

@@ -186,6 +186,9 @@ static void cmd_config(char *args)
     uint32_t v[12];
     for (uint8_t i = 0; i < 12; i++)
         v[i] = (uint32_t)dec_u64(next_token(&args));
+    /* Field by field, though the lines look alike: each says which number is which
+     * field, and the fields are of two widths; a table of offsets and sizes would be
+     * longer and say less. */
     cfg.rows = (uint16_t)v[0];
     cfg.cols = (uint16_t)v[1];
     cfg.actuator = (uint8_t)v[2];

@@ -5,10 +5,11 @@
  *                [--fast]
  *
  * It runs the firmware in simavr (Debian's libsimavr 1.6) at 16 MHz and
- *  - bridges USART0 to a pseudo-terminal of its own, printed on stdout as
- *    "port /dev/pts/N" (simavr's own bridge wedges on writes of 512 bytes or more,
- *    and its fixed symlink collides when tests run side by side): host bytes are fed
- *    to the UART only while it signals room (XON), device bytes go to the pty;
+ *  - bridges USART0 to a pseudo-terminal of its own (firmware/pty/vt_pty.h, as the
+ *    host build's), printed on stdout as "port /dev/pts/N" (simavr's own bridge wedges
+ *    on writes of 512 bytes or more, and its fixed symlink collides when tests run side
+ *    by side): host bytes are fed to the UART only while it signals room (XON), device
+ *    bytes go to the pty;
  *  - paces simulated time to the wall clock (the firmware's clock is its 16 MHz
  *    crystal; the host's heartbeat and timeouts are wall time), unless --fast;
  *  - times SPI transfers from SPCR/SPSR as the chip does (simavr 1.6 takes a fixed
@@ -33,20 +34,11 @@
  *    firmware/tools/profile.py to attribute to functions.
  * SIGTERM or SIGINT ends it cleanly (trace flushed). Exit status 0, or 1 on an error.
  */
-#define _GNU_SOURCE
-#include <errno.h>
-#include <fcntl.h>
-#include <poll.h>
-#include <pty.h>
-#include <signal.h>
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <termios.h>
-#include <time.h>
-#include <unistd.h>
 
 #include <avr_ioport.h>
 #include <avr_spi.h>
@@ -59,6 +51,8 @@
 #include <sim_irq.h>
 #include <sim_regbit.h>
 
+#include "vt_pty.h"
+
 #define MHZ 16000000ULL
 #define RAM_START 0x200
 #define RAM_END 0x21FF
@@ -66,23 +60,15 @@
 
 static avr_t *avr;
 static FILE *trace;
-static volatile sig_atomic_t stopping;
-static int master = -1, slave = -1, muted, unplugged;
-static double p_drop, p_corrupt, p_insert;
-static uint64_t rng = 0x9E3779B97F4A7C15ULL;
 static uint8_t fast;
+static vt_pty pty;
 
 /* ---------------------------------------------------------------- bytes in and out */
 
-static uint8_t in_q[1 << 16];
-static uint32_t in_head, in_tail;          /* host -> device, waiting for the UART */
-static uint8_t out_q[1 << 16];
-static uint32_t out_head, out_tail;        /* device -> host, waiting for the pty */
 static int xoff;
 static avr_irq_t *uart_in;
 static uint8_t spi_buf[4096];
 static uint16_t spi_n;
-static uint64_t stats_rx, stats_tx, stats_dropped, stats_corrupted, stats_inserted;
 static int64_t max_lag_ns;
 static uint32_t *profile;                  /* samples per flash word address, --profile */
 static avr_cycle_count_t next_sample;
@@ -92,14 +78,6 @@ static avr_cycle_count_t lat_raised;
 static uint32_t lat_pc, lat_worst_pc;
 static uint8_t lat_running, lat_worst_vector;
 static uint64_t lat_hist[128], lat_worst, lat_worst_at;
-
-static double uniform(void)
-{
-    rng ^= rng << 13;
-    rng ^= rng >> 7;
-    rng ^= rng << 17;
-    return (double)(rng >> 11) / (double)(1ULL << 53);
-}
 
 static void trace_line(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static void trace_line(const char *fmt, ...)
@@ -114,31 +92,11 @@ static void trace_line(const char *fmt, ...)
     va_end(ap);
 }
 
-/* A byte on the line, with faults: returns how many bytes (0-2) to pass on in out[]. */
-static int mangle(uint8_t b, uint8_t out[2])
-{
-    if (p_drop > 0 && uniform() < p_drop) {
-        stats_dropped++;
-        return 0;
-    }
-    if (p_corrupt > 0 && uniform() < p_corrupt) {
-        b ^= (uint8_t)(1 + (uint8_t)(uniform() * 255));
-        stats_corrupted++;
-    }
-    out[0] = b;
-    if (p_insert > 0 && uniform() < p_insert) {
-        out[1] = (uint8_t)(uniform() * 256);
-        stats_inserted++;
-        return 2;
-    }
-    return 1;
-}
-
 static void feed_uart(void)
 {
     static unsigned since_zero;
-    while (!xoff && in_tail != in_head) {
-        uint8_t b = in_q[in_tail++ & 0xFFFF];
+    uint8_t b;
+    while (!xoff && vt_pty_recv(&pty, &b)) {
         if (b == 0) {
             trace_line("\"e\":\"rx0\",\"n\":%u", since_zero);
             since_zero = 0;
@@ -170,47 +128,10 @@ static void uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq;
     (void)param;
-    uint8_t b = (uint8_t)value, m[2];
-    stats_tx++;
+    uint8_t b = (uint8_t)value;
     if (b == 0)
         trace_line("\"e\":\"tx0\"");
-    if (muted || unplugged || master < 0)
-        return;                               /* the UART sends into nothing */
-    int n = mangle(b, m);
-    for (int i = 0; i < n; i++)
-        out_q[out_head++ & 0xFFFF] = m[i];
-}
-
-static void pump_out(void)
-{
-    while (out_tail != out_head && master >= 0) {
-        uint32_t n = out_head - out_tail;
-        uint32_t at = out_tail & 0xFFFF;
-        if (at + n > sizeof out_q)
-            n = (uint32_t)sizeof out_q - at;
-        ssize_t w = write(master, &out_q[at], n);
-        if (w <= 0)
-            return;                           /* the host is not reading: keep it for later */
-        out_tail += (uint32_t)w;
-    }
-}
-
-static void read_host(void)
-{
-    uint8_t buf[4096];
-    ssize_t n = read(master, buf, sizeof buf);
-    if (n <= 0)
-        return;
-    if (muted)
-        return;
-    for (ssize_t i = 0; i < n; i++) {
-        uint8_t m[2];
-        int k = mangle(buf[i], m);
-        for (int j = 0; j < k; j++)
-            in_q[in_head++ & 0xFFFF] = m[j];
-    }
-    stats_rx += (uint64_t)n;
-    feed_uart();
+    vt_pty_send(&pty, b);
 }
 
 /* ---------------------------------------------------------------- pins and SPI */
@@ -316,54 +237,12 @@ static void fix_spi_timing(void)
     exit(1);
 }
 
-/* ---------------------------------------------------------------- the pty */
-
-static int open_pty(void)
-{
-    char name[256];
-    if (openpty(&master, &slave, name, NULL, NULL) < 0) {
-        perror("vtexp-simavr: openpty");
-        return -1;
-    }
-    struct termios t;
-    tcgetattr(slave, &t);
-    cfmakeraw(&t);
-    tcsetattr(slave, TCSANOW, &t);
-    fcntl(master, F_SETFL, O_NONBLOCK);
-    printf("port %s\n", name);
-    fflush(stdout);
-    return 0;
-}
-
-static void close_pty(void)
-{
-    if (master >= 0)
-        close(master);
-    if (slave >= 0)
-        close(slave);
-    master = slave = -1;
-    in_head = in_tail = out_head = out_tail = 0;
-}
-
 /* ---------------------------------------------------------------- commands */
 
-static void command(char *line)
+/* The harness's own, besides the pty's (vt_pty.h): "reset", the chip's reset pin. */
+static int command(const char *line)
 {
-    char *nl = strchr(line, '\n');
-    if (nl)
-        *nl = 0;
-    if (!strcmp(line, "mute")) {
-        muted = 1;
-    } else if (!strcmp(line, "unmute")) {
-        muted = 0;
-    } else if (!strcmp(line, "unplug")) {
-        unplugged = 1;
-        close_pty();
-    } else if (!strcmp(line, "replug")) {
-        close_pty();
-        unplugged = 0;
-        open_pty();
-    } else if (!strcmp(line, "reset")) {
+    if (!strcmp(line, "reset")) {
         avr_reset(avr);
         spi_n = 0;
         trace_line("\"e\":\"reset\"");
@@ -375,25 +254,12 @@ static void command(char *line)
                 port_val[i] = 0;              /* gate pull-downs */
                 trace_line("\"e\":\"port\",\"p\":\"%c\",\"v\":0", port_name[i]);
             }
-    } else if (!strncmp(line, "faults ", 7)) {
-        sscanf(line + 7, "%lf %lf %lf", &p_drop, &p_corrupt, &p_insert);
-    } else if (!strcmp(line, "flush")) {
-        if (trace)
-            fflush(trace);
-    } else if (!strcmp(line, "quit")) {
-        stopping = 1;
+        return 1;
     }
-    printf("ok %s\n", line);
-    fflush(stdout);
+    return 0;
 }
 
 /* ---------------------------------------------------------------- main */
-
-static void on_signal(int s)
-{
-    (void)s;
-    stopping = 1;
-}
 
 static void tick_pending(struct avr_irq_t *irq, uint32_t value, void *param)
 {
@@ -430,30 +296,19 @@ static void no_sleep(avr_t *a, avr_cycle_count_t how_long)
     (void)how_long;                           /* the main loop paces time itself */
 }
 
-static uint64_t mono_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000ULL + (uint64_t)ts.tv_nsec;
-}
-
 int main(int argc, char **argv)
 {
     const char *elf = NULL, *trace_path = NULL, *profile_path = NULL;
     unsigned long stack_from = 0;
     unsigned long peek_addr[16], peek_len[16];
     int n_peek = 0;
+    vt_pty_init(&pty, "vtexp-simavr");
+    pty.command = command;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--trace") && i + 1 < argc)
             trace_path = argv[++i];
-        else if (!strcmp(argv[i], "--drop") && i + 1 < argc)
-            p_drop = atof(argv[++i]);
-        else if (!strcmp(argv[i], "--corrupt") && i + 1 < argc)
-            p_corrupt = atof(argv[++i]);
-        else if (!strcmp(argv[i], "--insert") && i + 1 < argc)
-            p_insert = atof(argv[++i]);
-        else if (!strcmp(argv[i], "--seed") && i + 1 < argc)
-            rng ^= strtoull(argv[++i], NULL, 0) * 0x2545F4914F6CDD1DULL + 1;
+        else if (vt_pty_option(&pty, argc, argv, &i))
+            continue;
         else if (!strcmp(argv[i], "--stack-from") && i + 1 < argc)
             stack_from = strtoul(argv[++i], NULL, 0);
         else if (!strcmp(argv[i], "--peek") && i + 1 < argc && n_peek < 16) {
@@ -501,6 +356,7 @@ int main(int argc, char **argv)
             return 1;
         }
         setvbuf(trace, NULL, _IOFBF, 1 << 20);
+        pty.trace = trace;
     }
     for (unsigned a = RAM_START; a <= RAM_END; a++)
         avr->data[a] = PAINT;                 /* to measure the deepest stack */
@@ -536,23 +392,15 @@ int main(int argc, char **argv)
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('G'), 0), gate_port,
                             (void *)(intptr_t)3);
 
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_signal;
-    sigaction(SIGTERM, &sa, NULL);
-    sigaction(SIGINT, &sa, NULL);
-    signal(SIGPIPE, SIG_IGN);
-    if (open_pty() != 0)
+    vt_pty_catch_signals();
+    if (vt_pty_open(&pty) != 0)
         return 1;
     trace_line("\"e\":\"start\",\"hz\":%llu", (unsigned long long)MHZ);
 
-    uint64_t t0 = mono_ns(), next_wall = 0;
-    char line[256];
-    size_t line_n = 0;
-    int stdin_open = 1;
-    while (!stopping) {
+    uint64_t t0 = vt_mono_ns(), next_wall = 0;
+    while (!vt_pty_stopping) {
         uint64_t sim_ns = avr->cycle * 1000ULL / (MHZ / 1000000ULL);
-        uint64_t wall_ns = mono_ns() - t0;
+        uint64_t wall_ns = vt_mono_ns() - t0;
         int64_t ahead = fast ? 0 : (int64_t)sim_ns - (int64_t)wall_ns;
         if (-ahead > max_lag_ns)
             max_lag_ns = -ahead;
@@ -581,40 +429,11 @@ int main(int argc, char **argv)
                 fflush(trace);
             next_wall = sim_ns + 100000000ULL;
         }
-        struct pollfd pf[2];
-        int nf = 0;
-        pf[nf].fd = stdin_open ? 0 : -1;
-        pf[nf++].events = POLLIN;
-        if (master >= 0) {
-            pf[nf].fd = master;
-            pf[nf++].events = (short)(POLLIN | (out_tail != out_head ? POLLOUT : 0));
-        }
-        struct timespec wait = {0, 0};
+        uint64_t wait_ns = 0;
         if (!fast && ahead > 50000)             /* more than 50 us ahead: let the wall catch up */
-            wait.tv_nsec = ahead > 20000000 ? 20000000 : ahead;
-        if (ppoll(pf, (nfds_t)nf, &wait, NULL) > 0) {
-            if (pf[0].revents & POLLIN) {
-                ssize_t r = read(0, line + line_n, sizeof line - 1 - line_n);
-                if (r <= 0) {
-                    stdin_open = 0;           /* no more commands; run on */
-                } else {
-                    line_n += (size_t)r;
-                    line[line_n] = 0;
-                    char *nl;
-                    while ((nl = strchr(line, '\n'))) {
-                        *nl = 0;
-                        command(line);
-                        memmove(line, nl + 1, line_n - (size_t)(nl + 1 - line) + 1);
-                        line_n = strlen(line);
-                    }
-                    if (line_n == sizeof line - 1)
-                        line_n = 0;
-                }
-            }
-            if (nf > 1 && master >= 0 && (pf[1].revents & POLLIN))
-                read_host();
-        }
-        pump_out();
+            wait_ns = ahead > 20000000 ? 20000000 : (uint64_t)ahead;
+        vt_pty_wait(&pty, wait_ns);
+        vt_pty_flush(&pty);
         feed_uart();
     }
     unsigned long deepest = 0;
@@ -649,9 +468,9 @@ int main(int argc, char **argv)
     }
     trace_line("\"e\":\"end\",\"rx\":%llu,\"tx\":%llu,\"dropped\":%llu,\"corrupted\":%llu,"
                "\"inserted\":%llu,\"max_lag_ns\":%lld",
-               (unsigned long long)stats_rx, (unsigned long long)stats_tx,
-               (unsigned long long)stats_dropped, (unsigned long long)stats_corrupted,
-               (unsigned long long)stats_inserted, (long long)max_lag_ns);
+               (unsigned long long)pty.n_rx, (unsigned long long)pty.n_tx,
+               (unsigned long long)pty.n_dropped, (unsigned long long)pty.n_corrupted,
+               (unsigned long long)pty.n_inserted, (long long)max_lag_ns);
     if (trace)
         fclose(trace);
     if (profile) {
@@ -662,7 +481,7 @@ int main(int argc, char **argv)
         if (pf)
             fclose(pf);
     }
-    close_pty();
+    vt_pty_close(&pty);
     fprintf(stderr, "vtexp-simavr: stopped after %.3f s simulated (max lag behind the wall "
                     "clock %.1f ms)\n", (double)avr->cycle / MHZ, (double)max_lag_ns / 1e6);
     return 0;

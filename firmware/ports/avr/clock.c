@@ -48,15 +48,24 @@ uint64_t vt_hal_now_us(void)
     return t + (c >> 1);
 }
 
-/* No 64-bit division here: it costs thousands of cycles on an AVR. Times are turned into
- * ticks from the current tick, in 32 bits. */
-uint32_t vt_clock_tick_for(uint64_t t_us)
+/* The current tick and its time, copied with interrupts off. Inlined into each caller,
+ * which then compiles as it did with the copy written out in it. */
+static inline __attribute__((always_inline)) uint32_t tick_now(uint64_t *base)
 {
     uint8_t sreg = SREG;
     cli();
     uint32_t k = vt_ticks, lo = vt_tick_us_lo, hi = vt_tick_us_hi;
     SREG = sreg;
-    uint64_t base = vt_us64(hi, lo);
+    *base = vt_us64(hi, lo);
+    return k;
+}
+
+/* No 64-bit division here: it costs thousands of cycles on an AVR. Times are turned into
+ * ticks from the current tick, in 32 bits. */
+uint32_t vt_clock_tick_for(uint64_t t_us)
+{
+    uint64_t base;
+    uint32_t k = tick_now(&base);
     if (t_us <= base)
         return k;
     uint64_t d = t_us - base;
@@ -69,11 +78,8 @@ uint32_t vt_clock_tick_for(uint64_t t_us)
 
 uint64_t vt_clock_tick_time(uint32_t k)
 {
-    uint8_t sreg = SREG;
-    cli();
-    uint32_t now = vt_ticks, lo = vt_tick_us_lo, hi = vt_tick_us_hi;
-    SREG = sreg;
-    uint64_t base = vt_us64(hi, lo);
+    uint64_t base;
+    uint32_t now = tick_now(&base);
     int32_t d = (int32_t)(k - now);
     return d >= 0 ? base + (uint32_t)d * VT_TICK_US : base - (uint32_t)(-d) * VT_TICK_US;
 }

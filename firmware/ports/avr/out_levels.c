@@ -11,9 +11,9 @@
  * during the previous tick, so every output change happens at the tick itself (a few
  * cycles after it); 85 % into the tick, Timer1's compare B shifts out the plane for the
  * next tick. A set of changes (vt_hal_stage) is prepared in the second set of planes
- * and committed for a tick; the compare B before it shifts from the new set. A set with
- * onsets restarts the carrier at slot 0 (so each onset starts a whole period, and
- * the onset is the latch edge) and raises the sync output with the latch.
+ * and committed for a tick (out_commit.c); the compare B before it shifts from the new
+ * set. A set with onsets restarts the carrier at slot 0 (so each onset starts a whole
+ * period, and the onset is the latch edge) and raises the sync output with the latch.
  *
  * Chain: MOSI -> chip 0 -> chip 1 -> ... Actuator i is bit i % 8 of chip i / 8
  * (DRAIN0..7); the byte for the farthest chip is shifted first, MSB first.
@@ -28,6 +28,7 @@
 
 #include "avr_port.h"
 #include "board.h"
+#include "out_commit.h"
 #include "vt_hal.h"
 
 #define SLOTS 10
@@ -40,11 +41,6 @@ static volatile uint8_t active;              /* the set being shown */
 static volatile uint8_t slot;                /* carrier slot of the plane latched last */
 static volatile uint8_t pre_pending;         /* the plane shifted out is the staged set's */
 static volatile uint8_t pre_slot, pre_sync;
-
-enum { NONE, SCHEDULED, DONE };
-static volatile uint8_t commit_state, commit_rephase;
-static volatile uint32_t commit_tick;
-static volatile uint64_t commit_t;
 
 static volatile uint8_t oe_hold;             /* ticks before output enable comes back */
 
@@ -103,9 +99,7 @@ void vt_out_tick(void)
     if (pre_pending) {                        /* a committed set is now on the outputs */
         active ^= 1;
         pre_pending = 0;
-        commit_t = vt_clock_now_at(c);
-        commit_state = DONE;
-        vt_out_event = 1;
+        vt_commit_applied(c);
     }
     /* 2. The protocol watchdog, here so that a busy main loop cannot delay it. */
     if (vt_deadline_armed && (int32_t)(k - vt_deadline_tick) >= 0) {
@@ -126,13 +120,13 @@ void vt_out_prepare(void)
 {
     uint32_t k = vt_ticks;
     sei();
-    uint8_t use = commit_state == SCHEDULED && (int32_t)(commit_tick - (k + 1)) <= 0;
-    uint8_t next = (use && commit_rephase) ? 0 : (uint8_t)(slot + 1 == SLOTS ? 0 : slot + 1);
+    uint8_t use = vt_commit_due(k);
+    uint8_t next = (use && vt_commit_onsets) ? 0 : (uint8_t)(slot + 1 == SLOTS ? 0 : slot + 1);
     shift_out(planes[use ? active ^ 1 : active][next]);
     cli();
     pre_slot = next;
     pre_pending = use;
-    pre_sync = use && commit_rephase;
+    pre_sync = use && vt_commit_onsets;
 }
 
 void vt_hal_stage_begin(void)
@@ -153,87 +147,19 @@ void vt_hal_stage(uint16_t index, const vt_setting *s)
     }
 }
 
-/* The tick a set for time t goes out at: the first at or after t, and never before the
- * tick after next (the next tick's outputs are already prepared). */
-/* The earliest tick a set committed now can go out at: the next, unless its plane has
- * been shifted out already (compare B served), then the one after. Interrupts off. */
-static uint32_t earliest_tick(void)
-{
-    uint32_t k = vt_ticks;
-    if (TIFR1 & _BV(OCF1A))
-        return k + 2;                         /* tick k + 1 began; its compare B is to come */
-    if (TCNT1 < OCR1B || (TIFR1 & _BV(OCF1B)))
-        return k + 1;                         /* the next tick's plane is not shifted yet */
-    return k + 2;
-}
-
-/* The tick a set for time t goes out at: the first at or after t, and not before the
- * earliest. */
-static uint32_t commit_tick_for(uint64_t t_us)
-{
-    uint32_t k = vt_clock_tick_for(t_us);
-    uint8_t sreg = SREG;
-    cli();
-    uint32_t earliest = earliest_tick();
-    SREG = sreg;
-    return (int32_t)(k - earliest) < 0 ? earliest : k;
-}
-
-uint64_t vt_hal_commit_time(uint64_t t_us) { return vt_clock_tick_time(commit_tick_for(t_us)); }
-
-void vt_hal_commit_at(uint64_t t_us, uint8_t onsets)
-{
-    uint32_t k = commit_tick_for(t_us);
-    cli();
-    uint32_t earliest = earliest_tick();      /* time has passed since: check again */
-    if ((int32_t)(k - earliest) < 0)
-        k = earliest;
-    commit_tick = k;
-    commit_rephase = onsets;
-    commit_state = SCHEDULED;
-    sei();
-}
-
-uint8_t vt_hal_committed(uint64_t *t_us)
-{
-    uint8_t done = 0;
-    cli();
-    if (commit_state == DONE) {
-        *t_us = commit_t;
-        commit_state = NONE;
-        done = 1;
-    }
-    sei();
-    return done;
-}
-
-uint64_t vt_hal_commit_now(void)
-{
-    uint64_t t;
-    vt_hal_commit_at(0, 1);                   /* every change starts a carrier period */
-    while (!vt_hal_committed(&t))
-        ;                                     /* at most two ticks */
-    return t;
-}
+/* The planes hold the whole set: nothing to do before it is scheduled. */
+void vt_out_commit_prepare(void) {}
 
 void vt_hal_all_off(void)
 {
     cli();
     oe_off();                                 /* off at once */
-    commit_state = NONE;
+    vt_commit_abandon();
     pre_pending = 0;
     pre_sync = 0;
     oe_hold = 3;                              /* back on once zeros are latched */
     sei();
     memset(planes, 0, sizeof planes);
-}
-
-/* A play starts on a tick at least VT_START_LEAD_US away, so that its first instant,
- * prepared after the trigger is answered, makes it. */
-uint64_t vt_hal_align_start(uint64_t t_us)
-{
-    uint64_t soonest = vt_hal_now_us() + VT_START_LEAD_US;
-    return vt_hal_commit_time(t_us > soonest ? t_us : soonest);
 }
 
 #endif

@@ -13,8 +13,9 @@
  * Amplitude: each pin's gate MOSFET switches the output of its own linear stage,
  * set by one DAC channel (pin i: chip i / 8, channel i % 8; full scale =
  * VT_FULL_SCALE_MV at the pin). A channel is written when its amplitude changes:
- * ahead of the commit if the pin is idle, or at the commit's tick, after its edges, if a
- * train still runs on it (the new train's first pulse begins at the old amplitude).
+ * ahead of the commit (out_commit.c calls vt_out_commit_prepare) if the pin is idle, or
+ * at the commit's tick, after its edges, if a train still runs on it (the new train's
+ * first pulse begins at the old amplitude).
  *
  * LTC2656 word (32 bits for a daisy chain): 8 don't-care bits, command C3-C0,
  * address A3-A0, 12-bit code, 4 don't-care bits; command 0011 writes and updates
@@ -31,6 +32,7 @@
 
 #include "avr_port.h"
 #include "board.h"
+#include "out_commit.h"
 #include "vt_hal.h"
 
 #define N VT_MAX_ACTUATORS
@@ -86,10 +88,8 @@ static volatile uint8_t out_a, out_c, out_l, out_g;   /* gates for the next tick
 static volatile uint32_t next_edge;   /* earliest edge of any pin, us */
 static volatile uint8_t any_on;
 
-enum { NONE, SCHEDULED, DONE };
-static volatile uint8_t commit_state, commit_onsets, pre_commit, pre_sync;
-static volatile uint32_t commit_tick;
-static volatile uint64_t commit_t;
+static volatile uint8_t pre_commit, pre_sync;   /* the set committed (out_commit.c) goes
+                                                 * out at the next tick, with sync */
 static volatile uint8_t preparing;   /* the tick interrupt is preparing the next tick */
 volatile uint16_t vt_late_ticks;     /* ticks that came while the previous one was preparing */
 
@@ -111,7 +111,7 @@ void vt_out_safe(void)
 }
 
 #define DAC_XFER (4 * VT_DAC_CHIPS)               /* bytes of one transfer: a word a chip */
-static uint8_t dac_xfer[8 * DAC_XFER];          /* planned transfers, sent at the commit */
+static uint8_t dac_xfer[8 * DAC_XFER];   /* transfers for a commit's tick, or to send now */
 static volatile uint8_t n_dac_xfer;
 
 _Static_assert(sizeof pins + sizeof staged + sizeof dac_code + sizeof dac_want + sizeof act
@@ -172,11 +172,12 @@ static void dac_send(const uint8_t *buf, uint8_t n)
     }
 }
 
-/* Write now the channels of the pins in mask whose code differs from what they hold. */
+/* Write now the channels of the pins in mask whose code differs from what they hold.
+ * Not while a set is committed: its transfers wait in dac_xfer, planned here too (which
+ * keeps 128 bytes off the stack of the commit's deepest call). */
 static void dac_update(uint32_t mask)
 {
-    uint8_t buf[8 * DAC_XFER];
-    dac_send(buf, dac_plan(mask, buf, 8));
+    dac_send(dac_xfer, dac_plan(mask, dac_xfer, 8));
 }
 
 void vt_out_init(void)
@@ -361,9 +362,7 @@ void vt_out_tick(void)
     uint32_t k = vt_clock_tick();
     if (pre_commit) {
         pre_commit = 0;
-        commit_t = vt_clock_now_at(c);
-        commit_state = DONE;
-        vt_out_event = 1;
+        vt_commit_applied(c);
         if (n_dac_xfer) {
             /* The amplitudes of trains that replace a running one on their pin: sent
              * after this tick's edges (the first ~35 us per transfer of the new train's
@@ -398,7 +397,7 @@ void vt_out_tick(void)
     sei();
     /* The next tick: a committed set starts there, and edges due by then happen there. */
     uint32_t t_next = vt_tick_us_lo + VT_TICK_US;             /* us, wrapping */
-    uint8_t commit = commit_state == SCHEDULED && (int32_t)(commit_tick - (k + 1)) <= 0;
+    uint8_t commit = vt_commit_due(k);
     if (commit) {
         for (uint8_t j = 0; j < n_staged; j++) {
             uint8_t i = staged_list[j];
@@ -436,7 +435,7 @@ void vt_out_tick(void)
         }
     }
     pre_commit = commit;
-    pre_sync = commit && commit_onsets;
+    pre_sync = commit && vt_commit_onsets;
     if (commit && late) {
         /* The set goes out that many ticks late, and is reported then: its trains are
          * timed from then, and a first pulse keeps its whole width (its fall moves
@@ -490,26 +489,15 @@ void vt_hal_stage(uint16_t index, const vt_setting *s)
     staged_mask |= 1UL << index;
 }
 
-/* The tick a set for time t goes out at: the first at or after t, and never before the
- * tick after next (the next tick's outputs are already prepared). */
-static uint32_t commit_tick_for(uint64_t t_us)
-{
-    uint32_t k = vt_clock_tick_for(t_us);
-    uint8_t sreg = SREG;
-    cli();
-    uint32_t earliest = vt_ticks + 2;
-    SREG = sreg;
-    return (int32_t)(k - earliest) < 0 ? earliest : k;
-}
-
-uint64_t vt_hal_commit_time(uint64_t t_us) { return vt_clock_tick_time(commit_tick_for(t_us)); }
-
 void vt_out_prepare(void) {}                  /* the tick interrupt prepares the next tick */
 
-void vt_hal_commit_at(uint64_t t_us, uint8_t onsets)
+/* Before a set is scheduled (out_commit.c): the amplitudes it needs. The channels of
+ * pins that are idle now are written at once, out of the tick, where they disturb no
+ * train; the rest are planned for the commit's tick, which sends them after its edges.
+ * The tick reads n_dac_xfer only once this set is scheduled (the core commits one set
+ * at a time), so it is written here with interrupts on. */
+void vt_out_commit_prepare(void)
 {
-    uint32_t k = commit_tick_for(t_us);
-    /* amplitudes of pins that are idle now can be set at once, out of the tick */
     uint32_t idle = 0, bit = 1;
     for (uint8_t i = 0; i < N; i++, bit <<= 1) {
         if (!(staged_mask & bit))
@@ -519,45 +507,15 @@ void vt_hal_commit_at(uint64_t t_us, uint8_t onsets)
         if (!pins[i].on)
             idle |= bit;
     }
-    dac_update(idle);                         /* idle pins: at once, nothing to disturb */
-    uint8_t n_busy = dac_plan(staged_mask & ~idle, dac_xfer, 8);
-    cli();
-    n_dac_xfer = n_busy;                      /* the rest: sent by the commit's tick */
-    if ((int32_t)(k - (vt_ticks + 2)) < 0)
-        k = vt_ticks + 2;
-    commit_tick = k;
-    commit_onsets = onsets;
-    commit_state = SCHEDULED;
-    sei();
-}
-
-uint8_t vt_hal_committed(uint64_t *t_us)
-{
-    uint8_t done = 0;
-    cli();
-    if (commit_state == DONE) {
-        *t_us = commit_t;
-        commit_state = NONE;
-        done = 1;
-    }
-    sei();
-    return done;
-}
-
-uint64_t vt_hal_commit_now(void)
-{
-    uint64_t t;
-    vt_hal_commit_at(0, 1);
-    while (!vt_hal_committed(&t))
-        ;                                     /* at most two ticks */
-    return t;
+    dac_update(idle);
+    n_dac_xfer = dac_plan(staged_mask & ~idle, dac_xfer, 8);
 }
 
 void vt_hal_all_off(void)
 {
     cli();
     gates(0, 0, 0, 0);                        /* off at once */
-    commit_state = NONE;
+    vt_commit_abandon();
     pre_commit = 0;
     pre_sync = 0;
     uint8_t n = n_act;
@@ -581,14 +539,6 @@ void vt_hal_all_off(void)
     cli();
     held_off[0] = held_off[1] = held_off[2] = held_off[3] = 0;
     sei();
-}
-
-/* A play starts on a tick at least VT_START_LEAD_US away, so that its first instant,
- * prepared after the trigger is answered, makes it. */
-uint64_t vt_hal_align_start(uint64_t t_us)
-{
-    uint64_t soonest = vt_hal_now_us() + VT_START_LEAD_US;
-    return vt_hal_commit_time(t_us > soonest ? t_us : soonest);
 }
 
 #endif
