@@ -2,7 +2,7 @@
  *
  *   vtexp-simavr FIRMWARE.elf [--trace FILE] [--drop P] [--corrupt P] [--insert P]
  *                [--seed N] [--stack-from ADDR] [--peek ADDR:LEN]... [--profile FILE]
- *                [--fast]
+ *                [--fast | --lockstep FILE]
  *
  * It runs the firmware in simavr (Debian's libsimavr 1.6) at 16 MHz and
  *  - bridges USART0 to a pseudo-terminal of its own (firmware/pty/vt_pty.h, as the
@@ -11,7 +11,13 @@
  *    by side): host bytes are fed to the UART only while it signals room (XON), device
  *    bytes go to the pty;
  *  - paces simulated time to the wall clock (the firmware's clock is its 16 MHz
- *    crystal; the host's heartbeat and timeouts are wall time), unless --fast;
+ *    crystal; the host's heartbeat and timeouts are wall time), unless --fast; with
+ *    --lockstep FILE, the host keeps time by the chip instead: FILE holds two
+ *    little-endian 64-bit counts of cycles, the chip's (written here after each step)
+ *    and how far the host allows it to run (written by the host, vtexp's
+ *    cfirmware.ChipClock, whenever it reads the chip's): the chip runs as fast as the
+ *    computer goes, never further ahead of the host than that, and stands still while
+ *    no host is looking;
  *  - times SPI transfers from SPCR/SPSR as the chip does (simavr 1.6 takes a fixed
  *    100 us per byte, which would stretch a 50-byte shift to 5 ms);
  *  - writes a trace, one JSON object per line with the CPU cycle "c": "latch" (rising
@@ -34,11 +40,14 @@
  *    firmware/tools/profile.py to attribute to functions.
  * SIGTERM or SIGINT ends it cleanly (trace flushed). Exit status 0, or 1 on an error.
  */
+#include <fcntl.h>
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
 #include <avr_ioport.h>
 #include <avr_spi.h>
@@ -62,6 +71,32 @@ static avr_t *avr;
 static FILE *trace;
 static uint8_t fast;
 static vt_pty pty;
+
+/* --lockstep: the chip's cycle count and how far the host lets it run (see the top) */
+struct lockstep {
+    volatile uint64_t cycle;
+    volatile uint64_t allow;
+};
+static struct lockstep *step;
+
+static int open_lockstep(const char *path)
+{
+    int fd = open(path, O_RDWR | O_CREAT, 0600);
+    if (fd < 0 || ftruncate(fd, 4096) != 0) {
+        perror(path);
+        return -1;
+    }
+    step = mmap(NULL, 4096, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+    close(fd);
+    if (step == MAP_FAILED) {
+        perror(path);
+        step = NULL;
+        return -1;
+    }
+    step->cycle = 0;
+    step->allow = 0;
+    return 0;
+}
 
 /* ---------------------------------------------------------------- bytes in and out */
 
@@ -321,6 +356,10 @@ int main(int argc, char **argv)
             profile = calloc(0x20000, sizeof *profile);
         } else if (!strcmp(argv[i], "--fast"))
             fast = 1;
+        else if (!strcmp(argv[i], "--lockstep") && i + 1 < argc) {
+            if (open_lockstep(argv[++i]) != 0)
+                return 1;
+        }
         else if (argv[i][0] != '-' && !elf)
             elf = argv[i];
         else {
@@ -330,7 +369,7 @@ int main(int argc, char **argv)
     }
     if (!elf) {
         fprintf(stderr, "usage: vtexp-simavr FIRMWARE.elf [--trace FILE] [--drop P] "
-                        "[--corrupt P] [--insert P] [--seed N] [--fast]\n");
+                        "[--corrupt P] [--insert P] [--seed N] [--fast | --lockstep FILE]\n");
         return 1;
     }
     elf_firmware_t fw;
@@ -401,12 +440,16 @@ int main(int argc, char **argv)
     while (!vt_pty_stopping) {
         uint64_t sim_ns = avr->cycle * 1000ULL / (MHZ / 1000000ULL);
         uint64_t wall_ns = vt_mono_ns() - t0;
-        int64_t ahead = fast ? 0 : (int64_t)sim_ns - (int64_t)wall_ns;
-        if (-ahead > max_lag_ns)
+        int64_t ahead = (fast || step) ? 0 : (int64_t)sim_ns - (int64_t)wall_ns;
+        uint64_t allow = step ? step->allow : UINT64_MAX;
+        if (-ahead > max_lag_ns && !step)
             max_lag_ns = -ahead;
-        if (ahead <= 50000) {
-            /* run at most 100 us of simulated time, then look at the wall and the pty */
+        if (ahead <= 50000 && avr->cycle < allow) {
+            /* run at most 100 us of simulated time (in lockstep: no further than the host
+               allows), then look at the wall and the pty */
             avr_cycle_count_t until = avr->cycle + MHZ / 10000;
+            if (until > allow)
+                until = allow;
             while (avr->cycle < until && avr->state != cpu_Done && avr->state != cpu_Crashed) {
                 avr_flashaddr_t pc = avr->pc;
                 int was = avr->state;
@@ -422,6 +465,8 @@ int main(int argc, char **argv)
                 break;
             }
             ahead = 0;
+            if (step)
+                step->cycle = avr->cycle;
         }
         if (sim_ns >= next_wall) {
             trace_line("\"e\":\"wall\",\"ns\":%llu", (unsigned long long)wall_ns);
@@ -432,6 +477,8 @@ int main(int argc, char **argv)
         uint64_t wait_ns = 0;
         if (!fast && ahead > 50000)             /* more than 50 us ahead: let the wall catch up */
             wait_ns = ahead > 20000000 ? 20000000 : (uint64_t)ahead;
+        else if (step && avr->cycle >= step->allow)
+            wait_ns = 200000;                   /* lockstep: until the host looks again */
         vt_pty_wait(&pty, wait_ns);
         vt_pty_flush(&pty);
         feed_uart();

@@ -61,6 +61,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--trace", metavar="FILE",
                    help="with --firmware avr or host: write what the outputs did to FILE "
                         "(JSON lines; for avr, the chip's pins with CPU cycles)")
+    s.add_argument("--lockstep", action="store_true",
+                   help="with --firmware avr: vtexp keeps time by the simulated chip instead "
+                        "of the chip keeping to the wall clock; the chip runs as fast as "
+                        "this computer goes (a study rehearsed on the .elf in a fraction of "
+                        "its time) and the device spec printed says so (lockstep=FILE)")
     s.add_argument("--insert", type=float, default=0.0, metavar="RATE",
                    help="with --firmware avr or host: probability that a random byte is "
                         "inserted after each byte")
@@ -265,15 +270,25 @@ def _emulate_c_firmware(args: argparse.Namespace, profile) -> int:
                          "'vtexp device monitor' between it and the experiment", key="--verbose")
     trace = Path(args.trace) if args.trace else None
     faults = (args.drop, args.corrupt, args.insert)
+    if args.lockstep and args.firmware != "avr":
+        raise InputError("applies to the ATmega2560 in simavr only (--firmware avr)",
+                         key="--lockstep")
     if args.firmware == "avr":
-        proc = AvrSimulator(profile.name, trace=trace, faults=faults, seed=args.seed)
+        proc = AvrSimulator(profile.name, trace=trace, faults=faults, seed=args.seed,
+                            lockstep=args.lockstep)
         what = f"the reference firmware's ATmega2560 build in simavr ({proc.elf})"
     else:
         proc = HostFirmware(profile, trace=trace, faults=faults, seed=args.seed)
         what = "the reference firmware built for this computer"
     port = proc.start()
     out(f"emulating {profile.name} with {what} on {port}")
-    if args.firmware == "avr":
+    if args.firmware == "avr" and args.lockstep:
+        # the host keeps time by the chip, which runs on while a busy host's threads wait
+        # for the processor: the same slower heartbeat and longer wait for replies
+        spec = f"serial:{port},heartbeat_ms=1000,reply_ms=250,lockstep={proc.lockstep_path}"
+        out(f"use it with --device {spec}   (in lockstep: the chip's time, as fast as this "
+            "computer goes; Ctrl-C to stop)")
+    elif args.firmware == "avr":
         # the simulated chip can fall behind the wall clock on a busy computer: a slower
         # heartbeat and a longer wait for replies keep that from looking like a lost link
         out(f"use it with --device serial:{port},heartbeat_ms=1000,reply_ms=250   "

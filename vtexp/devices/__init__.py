@@ -8,7 +8,9 @@ Specs for :func:`open_device` (and ``--device`` on the command line):
   ``serial:/dev/pts/4``, ``serial:socket://host:7000``; link settings after
   commas: ``serial:/dev/ttyACM0,baud=115200,heartbeat_ms=500,watchdog_ms=1000``
   (:data:`SERIAL_OPTIONS`; ``reply_ms`` is how long a reply is waited for
-  before a request is sent again, beyond the frame's own time on the line);
+  before a request is sent again, beyond the frame's own time on the line;
+  ``lockstep=FILE`` keeps time by a simulated chip's clock, for the ATmega2560 in
+  simavr as ``vtexp device emulate --firmware avr --lockstep`` serves it);
 - ``emulator``: the same serial backend talking to an emulated device that
   it starts on a pseudo-terminal (byte-exact, no hardware), in real time;
   ``emulator:virtual``: the same emulated device in-process on a virtual clock
@@ -38,7 +40,7 @@ BACKENDS = ("sim", "serial", "emulator")
 #: ``serial:PORT,KEY=VALUE,...``: what may follow the port, and the SerialDevice argument.
 SERIAL_OPTIONS = {"baud": "baudrate", "heartbeat_ms": "heartbeat_ms",
                   "watchdog_ms": "watchdog_ms", "reply_ms": "reply_timeout_ms",
-                  "timing": "timing"}
+                  "timing": "timing", "lockstep": "clock"}
 
 
 def _serial_options(arg: str) -> tuple[str, dict[str, Any]]:
@@ -55,6 +57,10 @@ def _serial_options(arg: str) -> tuple[str, dict[str, Any]]:
                 raise InputError(f"timing must be device or host (got {value!r})",
                                  key="--device")
             options["timing"] = value
+            continue
+        if key == "lockstep":
+            from .cfirmware import ChipClock
+            options["clock"] = ChipClock(value)
             continue
         try:
             n = int(value)

@@ -5,7 +5,10 @@ Two ways to run the same core that a lab flashes (docs/firmware.md):
 - :class:`AvrSimulator`: the ATmega2560 build, the very ``.elf``, in simavr through
   the ``vtexp-simavr`` harness: its UART on a pseudo-terminal of its own, simulated
   time paced to the wall clock, and a cycle-stamped trace of what the chip drove
-  (``vtexp.devices.fwtrace`` reads it);
+  (``vtexp.devices.fwtrace`` reads it). With ``lockstep=True`` the host keeps time by
+  the chip instead (:class:`ChipClock`, a :class:`~vtexp.clock.Clock`): the chip runs
+  as fast as the computer goes, never further ahead of the host than a few ms, and
+  heartbeats, timeouts and pauses between trials are the chip's time;
 - :class:`HostFirmware`: the core compiled for this computer behind a
   pseudo-terminal, with the host's clock and a record of the outputs: the C
   firmware without the chip, fast to start.
@@ -19,12 +22,16 @@ and says what to install when a tool is missing.
 from __future__ import annotations
 
 import hashlib
+import mmap
 import os
 import shutil
 import signal
+import struct
 import subprocess
 import tempfile
 import threading
+import time
+from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
 from typing import Literal
@@ -213,6 +220,84 @@ class _Process:
         self.stop()
 
 
+class ChipClock:
+    """The simulated chip's clock, in lockstep with ``vtexp-simavr --lockstep FILE``.
+
+    ``FILE`` holds the chip's cycle count and how far the host lets it run; every
+    reading of this clock lets the chip run ``lead_s`` further, so the chip goes as fast
+    as the computer allows while the host is looking, and stands still while it is not
+    (a host that computes takes no time on the chip's clock). Its time is the chip's:
+    seconds since it was powered on. It is a real clock in every other way (threads
+    may wait on it): :meth:`sleep` and :meth:`wait_for` look at the chip every fraction
+    of a millisecond; a chip that stops running for ``stall_s`` of real time raises
+    :class:`~vtexp.errors.DeviceError` instead of waiting for ever.
+    """
+
+    virtual = False
+
+    def __init__(self, path: str | Path, *, hz: float = 16e6, lead_s: float = 0.02,
+                 stall_s: float = 10.0):
+        self.path = Path(path)
+        self.hz = hz
+        self.lead = int(lead_s * hz)
+        self.stall_s = stall_s
+        try:
+            with open(self.path, "r+b") as f:
+                self._map = mmap.mmap(f.fileno(), 16)
+        except (OSError, ValueError) as e:
+            raise DeviceError(f"cannot share the simulated chip's clock through {self.path}: "
+                              f"{e}; is vtexp-simavr running with --lockstep?") from None
+        self._wall0 = time.time()
+        self._seen = (0, time.monotonic())
+
+    def _cycles(self) -> int:
+        cycle, allow = struct.unpack_from("<QQ", self._map, 0)
+        if cycle + self.lead > allow:
+            struct.pack_into("<Q", self._map, 8, cycle + self.lead)
+        return cycle
+
+    def now(self) -> float:
+        return self._cycles() / self.hz
+
+    def now_ms(self) -> float:
+        return self.now() * 1000.0
+
+    def wall(self) -> float:
+        return self._wall0 + self.now()
+
+    def _check_running(self, cycles: int) -> None:
+        last, since = self._seen
+        real = time.monotonic()
+        if cycles != last:
+            self._seen = (cycles, real)
+        elif real - since > self.stall_s:
+            raise DeviceError(f"the simulated chip has not run for {self.stall_s:g} s (its "
+                              "simulator stopped?)")
+
+    def sleep(self, seconds: float) -> None:
+        self.sleep_until(self.now() + seconds)
+
+    def sleep_until(self, t: float) -> None:
+        while (c := self._cycles()) < t * self.hz:
+            self._check_running(c)
+            time.sleep(0.0002)
+
+    def wait_for(self, cond: threading.Condition, predicate: Callable[[], object],
+                 timeout: float | None) -> bool:
+        end = None if timeout is None else (self.now() + timeout) * self.hz
+        with cond:
+            while not predicate():
+                c = self._cycles()
+                if end is not None and c >= end:
+                    return bool(predicate())
+                self._check_running(c)
+                cond.wait(0.0003)
+            return True
+
+    def __repr__(self) -> str:
+        return f"ChipClock({self.path})"
+
+
 class AvrSimulator(_Process):
     """The ATmega2560 firmware for ``profile`` in simavr, on a pty (see module docstring).
 
@@ -226,6 +311,9 @@ class AvrSimulator(_Process):
         ``(drop, corrupt, insert)`` probabilities per byte, both directions.
     seed:
         Of the fault generator.
+    lockstep:
+        The host keeps time by the chip (:attr:`clock`, a :class:`ChipClock`) instead of
+        the chip being paced to the wall clock.
     """
 
     name = "the ATmega2560 in simavr"
@@ -235,7 +323,7 @@ class AvrSimulator(_Process):
 
     def __init__(self, profile: str | None, *, trace: Path | None = None,
                  faults: tuple[float, float, float] = (0.0, 0.0, 0.0), seed: int = 0,
-                 elf: Path | None = None):
+                 elf: Path | None = None, lockstep: bool = False):
         if elf is None and profile not in PROFILES:
             raise InputError(f"unknown firmware profile {profile!r}; built: "
                              f"{', '.join(PROFILES)}", key="--profile")
@@ -263,7 +351,29 @@ class AvrSimulator(_Process):
                 continue                      # not in this build (a port's own counter)
             self._watch[addr] = (name, size)
             argv += ["--peek", f"{addr:#x}:{size}"]
+        self.lockstep_path: Path | None = None
+        self._clock: ChipClock | None = None
+        if lockstep:
+            fd, name = tempfile.mkstemp(prefix="vtexp-simavr-clock-")
+            os.close(fd)
+            self.lockstep_path = Path(name)
+            argv += ["--lockstep", name]
         super().__init__(argv, trace)
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        super().stop(timeout_s)
+        if self.lockstep_path is not None:
+            self.lockstep_path.unlink(missing_ok=True)
+
+    @property
+    def clock(self) -> ChipClock:
+        """The chip's clock, for the host (with ``lockstep``)."""
+        if self.lockstep_path is None:
+            raise DeviceError("the simulated chip is paced to the wall clock; start it with "
+                              "lockstep=True to keep time by it")
+        if self._clock is None:
+            self._clock = ChipClock(self.lockstep_path)
+        return self._clock
 
     def peeked(self, trace) -> dict[str, int]:
         """The watched firmware variables at the end of the run (little-endian), e.g.

@@ -23,6 +23,7 @@ answer to miss (the device's watchdog, ``watchdog_ms``, judges that side).
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -310,7 +311,9 @@ class Link:
 
     # -- reader ---------------------------------------------------------------------------
     def _read_loop(self) -> None:
-        ran = self.clock.now()
+        # Whether this thread was kept from running is a question of the computer's time,
+        # whatever clock the link keeps.
+        ran = time.monotonic()
         while not self._closing.is_set():
             try:
                 n = self.port.in_waiting
@@ -320,13 +323,13 @@ class Link:
                 return
             if data:
                 self._feed(data)
-            now = self.clock.now()
+            now = time.monotonic()
             if now - ran > STARVED_S and self.unanswered_since is not None:
                 # This thread was not run for a while (the computer was busy): neither,
                 # perhaps, was a device in this process or the program feeding the pty.
                 # Silence is counted afresh from now rather than from before the gap.
                 self.stats.starved += 1
-                self.unanswered_since = now
+                self.unanswered_since = self.clock.now()
             ran = now
             if self._check_silence():
                 return
@@ -394,7 +397,7 @@ class Link:
     # -- heartbeat --------------------------------------------------------------------------
     def _heartbeat_loop(self) -> None:
         assert self.heartbeat_s is not None
-        while not self._closing.wait(CHECK_FRACTION * self.heartbeat_s):
+        while not self.wait_for(self._closing.is_set, CHECK_FRACTION * self.heartbeat_s):
             if self.lost is not None:
                 return
             self._heartbeat_due()

@@ -400,6 +400,8 @@ class SerialDevice(DeviceBase):
         opts.append(f"watchdog_ms={watchdog_ms}")
         if self.reply_timeout_s != 0.025:
             opts.append(f"reply_ms={self.reply_timeout_s * 1000:g}")
+        if getattr(self.clock, "path", None) is not None:     # a chip's clock (lockstep)
+            opts.append(f"lockstep={self.clock.path}")
         return ",".join([f"serial:{self.port}", *opts])
 
     def _watchdog_message(self) -> str:
