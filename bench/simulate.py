@@ -32,7 +32,7 @@ from vtexp.compile import compile_conditions
 from vtexp.devices.sim import SimDevice
 from vtexp.experiment import load_experiment
 from vtexp.observer import ModelObserver, ObserverModel
-from vtexp.session import run_session
+from vtexp.session import SessionOptions, run_session
 from vtexp.simulate import run_power
 
 EXP = ROOT / "experiments" / "six_mode_ball.yaml"
@@ -45,8 +45,8 @@ def sessions_per_participant(k: int = 6) -> float:
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
         for i in range(k):
-            run_session(lx, f"sim{i}", 1, SimDevice(model.profile),
-                        ModelObserver(model, f"sim{i}", seed=0), d, conditions=conds)
+            run_session(lx, SimDevice(model.profile), ModelObserver(model, f"sim{i}", seed=0),
+                        SessionOptions(participant=f"sim{i}", data_dir=d, conditions=conds))
         load_sessions([d])
         return (time.perf_counter() - t0) / k
 

@@ -11,7 +11,7 @@ from vtexp.devices import open_device
 from vtexp.experiment import load_experiment
 from vtexp.model import DeviceProfile
 from vtexp.responders import make_responder
-from vtexp.session import run_session
+from vtexp.session import SessionOptions, TrialDone, run_session
 
 exp_path, data, participant, delay = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4])
 lx = load_experiment(exp_path)
@@ -27,11 +27,15 @@ def slow_ask(q, t, replay):
 responder.ask = slow_ask
 
 
-def announce(rec, trial, total):
-    print(f"logged {rec.trial}", flush=True)
+def announce(record):
+    if isinstance(record, TrialDone):
+        for rec in record.rows:
+            print(f"logged {rec.trial}", flush=True)
 
 
 with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
-    run_session(lx, participant, 1, dev, responder, data, sinks=(announce,),
-                resume=len(sys.argv) > 5 and sys.argv[5] == "resume")
+    run_session(lx, dev, responder,
+                SessionOptions(participant=participant, data_dir=data,
+                               resume=len(sys.argv) > 5 and sys.argv[5] == "resume"),
+                consumers=(announce,))
 print("done", flush=True)

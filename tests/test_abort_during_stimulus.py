@@ -26,7 +26,7 @@ from vtexp.errors import SessionAborted
 from vtexp.experiment import load_experiment
 from vtexp.model import DeviceProfile, Pulse, Schedule
 from vtexp.responders import Response
-from vtexp.session import run_session
+from vtexp.session import SessionOptions, run_session
 
 
 @pytest.fixture(params=["sim", "emulator", "emulator-host-timing", "serial-pty"])
@@ -163,7 +163,7 @@ def test_a_session_stopped_during_a_stimulus_is_aborted_and_keeps_its_trials(tmp
     r = StopsDuringTheSecondStimulus()
     with open_device("sim:realtime", DeviceProfile.load(lx.experiment.device)) as dev:
         with pytest.raises(SessionAborted, match="the test stopped trial 2"):
-            run_session(lx, "01", 1, dev, r, tmp_path / "data")
+            run_session(lx, dev, r, SessionOptions(participant="01", data_dir=tmp_path / "data"))
         assert float(dev.state.max()) == 0.0
     kinds = [e.kind for e in dev.history]
     assert kinds.count("play") == 1 and kinds[kinds.index("stopped") + 1] == "all_off"

@@ -35,7 +35,7 @@ if shutil.which("espeak-ng") is None:
 from vtexp.devices import open_device                    # noqa: E402
 from vtexp.experiment import load_experiment            # noqa: E402
 from vtexp.model import DeviceProfile                   # noqa: E402
-from vtexp.session import run_session                   # noqa: E402
+from vtexp.session import SessionOptions, run_session   # noqa: E402
 
 OUT = ROOT / "test-output"
 STUDIES = ["duration_interval_grid", "letters", "six_mode_ball", "whirlpool",
@@ -204,7 +204,9 @@ def _session(study, audio, display, tmp_path):
         thread = threading.Thread(target=participant, daemon=True)
         thread.start()
         try:
-            res = run_session(lx, "01", 1, dev, r, tmp_path / "data", max_trials=2)
+            res = run_session(lx, dev, r,
+                              SessionOptions(participant="01", data_dir=tmp_path / "data",
+                                             max_trials=2))
         finally:
             thread.join(30)
             assert not problems, problems
@@ -355,7 +357,9 @@ def test_the_pause_screen_during_a_device_fault(display, tmp_path):
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
         dev._play = lambda schedule: failing(dev, schedule)
         with pytest.raises(DeviceError):
-            run_session(lx, "01", 1, dev, r, tmp_path / "d", on_device_error=experimenter)
+            run_session(lx, dev, r,
+                        SessionOptions(participant="01", data_dir=tmp_path / "d",
+                                       on_device_error=experimenter))
     assert shown == ["paused"]
     px = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(
         OUT / "screens-issue13" / "paused.png").convert("L"))

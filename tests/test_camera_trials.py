@@ -21,7 +21,7 @@ from vtexp.live.synthetic import write_video
 from vtexp.model import DeviceProfile
 from vtexp.responders import make_responder
 from vtexp.safety import check_schedule
-from vtexp.session import run_session
+from vtexp.session import SessionOptions, run_session
 from vtexp.stimuli import read_image
 
 VEST = DeviceProfile.load("vest_6x8")
@@ -79,7 +79,8 @@ class Slow:
 
 def run(lx, tmp_path, device, *, answer_s=0.8, **kw):
     responder = Slow(make_responder("scripted:correct", "01", 1, lx), answer_s)
-    return run_session(lx, "01", 1, device, responder, tmp_path / "data", **kw)
+    return run_session(lx, device, responder,
+                       SessionOptions(participant="01", data_dir=tmp_path / "data", **kw))
 
 
 def test_a_camera_session_end_to_end_on_the_emulator(tmp_path, clip):

@@ -18,7 +18,7 @@ from vtexp.experiment import available_codings, load_coding_file, load_experimen
 from vtexp.model import DeviceProfile
 from vtexp.resources import codings_dir
 from vtexp.responders import make_responder
-from vtexp.session import run_session
+from vtexp.session import SessionOptions, run_session
 
 EXPERIMENTS = sorted((ROOT / "experiments").glob("*.yaml"))
 SHIPPED = sorted((ROOT / "protocols" / "codings").glob("*.yaml"))
@@ -159,7 +159,8 @@ def test_session_json_records_the_coding_file_and_its_hash(tmp_path, minimal_yam
     lx = load_experiment(f)
     responder = make_responder("scripted:correct", "01", 1)
     with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
-        res = run_session(lx, "01", 1, dev, responder, tmp_path / "data")
+        res = run_session(lx, dev, responder,
+                          SessionOptions(participant="01", data_dir=tmp_path / "data"))
     meta = json.loads(res.paths.session_json.read_text())
     coding = meta["experiment_loaded"]["coding"]
     file = ROOT / "protocols" / "codings" / "seed001_table1_best_trace.yaml"

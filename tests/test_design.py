@@ -147,7 +147,7 @@ def test_practice_trials_come_first_are_logged_and_not_analysed(tmp_path, minima
     from vtexp.devices import open_device
     from vtexp.model import DeviceProfile
     from vtexp.responders import ScriptedResponder
-    from vtexp.session import run_session
+    from vtexp.session import SessionOptions, run_session
     lx = _lx(tmp_path, minimal_yaml, "  practice: 3\n  break_every: 2\n")
     trials, _ = trial_list(lx.experiment, compile_conditions(lx), "01", 1)
     assert [t.practice for t in trials] == [True] * 3 + [False] * 4
@@ -158,8 +158,8 @@ def test_practice_trials_come_first_are_logged_and_not_analysed(tmp_path, minima
         def pause(self, text):
             breaks.append(text)
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-        res = run_session(lx, "01", 1, dev, WithBreaks(lambda q, t: t.levels["shape"]),
-                          tmp_path / "d")
+        res = run_session(lx, dev, WithBreaks(lambda q, t: t.levels["shape"]),
+                          SessionOptions(participant="01", data_dir=tmp_path / "d"))
     assert [r.practice for r in res.records] == [True] * 3 + [False] * 4
     assert len(breaks) == 1 and "2 of 4 trials" in breaks[0]      # after main trial 2, not 4
     analysed, _ = load_sessions([tmp_path / "d"])

@@ -27,16 +27,16 @@ SHORT = MINIMAL.replace("repetitions: 2", "repetitions: 1").replace(
 
 
 class Recorder:
-    """A sink that keeps what the session told it (the plays as reported)."""
+    """A consumer that keeps what the session told it (the plays as reported)."""
 
     def __init__(self):
         self.plays: dict[int, list] = {}
 
-    def __call__(self, record, trial, total):
-        pass
+    def __call__(self, record):
+        from vtexp.session import TrialDone
 
-    def trial_logged(self, trial, records, plays):
-        self.plays[trial.number] = plays
+        if isinstance(record, TrialDone):
+            self.plays[record.trial.number] = record.plays
 
 
 def _session(tmp_path, device_spec: str, markers):
@@ -44,14 +44,15 @@ def _session(tmp_path, device_spec: str, markers):
     from vtexp.experiment import load_experiment
     from vtexp.model import DeviceProfile
     from vtexp.responders import make_responder
-    from vtexp.session import run_session
+    from vtexp.session import SessionOptions, run_session
 
     lx = load_experiment(write_experiment(tmp_path, SHORT))
     rec = Recorder()
     device = open_device(device_spec, DeviceProfile.load(lx.experiment.device))
     with device:
-        res = run_session(lx, "01", 1, device, make_responder("scripted:correct", "01", 1, lx),
-                          tmp_path / "data", sinks=(rec, *markers))
+        res = run_session(lx, device, make_responder("scripted:correct", "01", 1, lx),
+                          SessionOptions(participant="01", data_dir=tmp_path / "data"),
+                          consumers=(rec, *markers))
     assert res.status == "completed"
     events = pd.read_csv(res.paths.events_tsv, sep="\t")
     return res, events, rec, device

@@ -16,7 +16,7 @@ from vtexp.experiment import load_experiment
 from vtexp.observer import ModelObserver, ObserverModel
 from vtexp.observer.params import load_params
 from vtexp.observer.percept import Skin, features, noise_density
-from vtexp.session import run_session
+from vtexp.session import SessionOptions, run_session
 from vtexp.simulate import Setup, run_power, simulate_participant, simulate_studies
 
 GRID = ROOT / "experiments" / "duration_interval_grid.yaml"
@@ -103,9 +103,9 @@ def test_a_session_with_the_model_observer_logs_what_the_simulator_predicts(tmp_
     lx = load_experiment(path)
     model = ObserverModel.for_experiment(lx)
     conditions = compile_conditions(lx, model.profile)
-    res = run_session(lx, "sim1", 1, SimDevice(model.profile),
-                      ModelObserver(model, "sim1", 1, seed=5), tmp_path, conditions=conditions,
-                      max_trials=40)
+    res = run_session(lx, SimDevice(model.profile), ModelObserver(model, "sim1", 1, seed=5),
+                      SessionOptions(participant="sim1", data_dir=tmp_path,
+                                     conditions=conditions, max_trials=40))
     with open(res.paths.beh_tsv, encoding="utf-8") as f:
         logged = [(int(r["trial"]), r["question"], r["answer"])
                   for r in csv.DictReader(f, delimiter="\t") if r["practice"] == "0"]

@@ -23,7 +23,8 @@ from vtexp.experiment import load_experiment
 from vtexp.lock import SessionBusy, SessionLock
 from vtexp.model import DeviceProfile
 from vtexp.responders import make_responder
-from vtexp.session import SessionPaths, mark_dead_sessions, run_session
+from vtexp.session import (SessionOptions, SessionPaths, TrialDone, mark_dead_sessions,
+                           run_session)
 
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))
 SLOW = MINIMAL.replace("repetitions: 2", "repetitions: 4")
@@ -163,14 +164,15 @@ def _run_killed_at(lx, data, k: int) -> int:
             setattr(os, name, counting(name))
         at_first = []
 
-        def sink(rec, trial, total):
-            if not at_first:
+        def sink(record):
+            if isinstance(record, TrialDone) and not at_first:
                 at_first.append(n[0])
         try:
             with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-                run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1),
-                            data, sinks=(sink,), device_spec="sim",
-                            responder_spec="scripted:correct")
+                run_session(lx, dev, make_responder("scripted:correct", "01", 1),
+                            SessionOptions(participant="01", data_dir=data, device_spec="sim",
+                                           responder_spec="scripted:correct"),
+                            consumers=(sink,))
             real["write"](w, str(at_first[0]).encode())
         finally:
             os._exit(0)
@@ -194,8 +196,9 @@ def _finish(lx, data) -> str:
         mark_dead_sessions(data, "mini")
         assert not list(d.parent.glob(".ses-*")) if d.parent.exists() else True
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-        res = run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1), data,
-                          resume=resume, device_spec="sim", responder_spec="scripted:correct")
+        res = run_session(lx, dev, make_responder("scripted:correct", "01", 1),
+                          SessionOptions(participant="01", data_dir=data, resume=resume,
+                                         device_spec="sim", responder_spec="scripted:correct"))
     assert res.status == "completed"
     return "resumed" if resume else "started"
 
@@ -244,7 +247,8 @@ def test_what_an_older_run_killed_at_start_left_is_rebuilt(tmp_path):
     lx = load_experiment(write_experiment(tmp_path, MINIMAL))
     ref = tmp_path / "ref"
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-        run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1), ref)
+        run_session(lx, dev, make_responder("scripted:correct", "01", 1),
+                    SessionOptions(participant="01", data_dir=ref))
     ref_beh, ref_ev = _logged(ref)
     p = paths_of(ref)
     for case in ("folder only", "record only", "no events log", "empty trial log"):
@@ -262,8 +266,8 @@ def test_what_an_older_run_killed_at_start_left_is_rebuilt(tmp_path):
             q.beh_tsv.write_bytes(b"" if case == "empty trial log" else
                                   p.beh_tsv.read_bytes().split(b"\n")[0] + b"\n")
         with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-            res = run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1),
-                              data, resume=True)
+            res = run_session(lx, dev, make_responder("scripted:correct", "01", 1),
+                              SessionOptions(participant="01", data_dir=data, resume=True))
         assert res.status == "completed", case
         beh, ev = _logged(data)
         pd.testing.assert_frame_equal(beh, ref_beh)
@@ -314,19 +318,22 @@ def test_force_device_continues_on_another_kind_and_says_so(tmp_path):
     lx = load_experiment(write_experiment(tmp_path, MINIMAL))
     data = tmp_path / "d"
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-        run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1), data,
-                    max_trials=1, device_spec="emulator")
+        run_session(lx, dev, make_responder("scripted:correct", "01", 1),
+                    SessionOptions(participant="01", data_dir=data, max_trials=1,
+                                   device_spec="emulator"))
     meta = json.loads(paths_of(data).session_json.read_text())
     meta["device_spec"] = "serial:/dev/ttyACM0"          # as a serial session records it
     meta["device"].update(backend="serial", port="/dev/ttyACM0", firmware="vest 1.2")
     paths_of(data).session_json.write_text(json.dumps(meta))
     with pytest.raises(SessionError, match="ran on serial:/dev/ttyACM0 .*firmware vest 1.2"):
         with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-            run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1), data,
-                        resume=True, device_spec="sim")
+            run_session(lx, dev, make_responder("scripted:correct", "01", 1),
+                        SessionOptions(participant="01", data_dir=data, resume=True,
+                                       device_spec="sim"))
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-        res = run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1), data,
-                          resume=True, device_spec="sim", force_device=True)
+        res = run_session(lx, dev, make_responder("scripted:correct", "01", 1),
+                          SessionOptions(participant="01", data_dir=data, resume=True,
+                                         device_spec="sim", force_device=True))
     assert res.status == "completed"
     meta = json.loads(paths_of(data).session_json.read_text())
     assert meta["resumes"][-1]["forced_device"] is True
@@ -425,7 +432,8 @@ def test_the_progress_line_estimates_from_the_first_trial_on(tmp_path, capsys):
         rec = SimpleNamespace(correct=True, answer="circle",
                               started_at=pd.Timestamp(t0 + (n - 1) * 5, unit="s", tz="UTC")
                               .isoformat())
-        p(rec, SimpleNamespace(number=n, condition=SimpleNamespace(label="x")), 98)
+        trial = SimpleNamespace(number=n, condition=SimpleNamespace(label="x"))
+        p(TrialDone(trial, (rec,), (), 98, wall_s=0.0, host_ms=0.0))
     line = capsys.readouterr().err.splitlines()[-1]
     assert "left ~8 min" in line            # 96 trials x 5 s
     assert "elapsed 0:09" in line
@@ -437,7 +445,8 @@ def test_analyze_refuses_duplicated_trials_or_drops_them_when_asked(tmp_path):
     lx = load_experiment(write_experiment(tmp_path, MINIMAL))
     data = tmp_path / "d"
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-        run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1), data)
+        run_session(lx, dev, make_responder("scripted:correct", "01", 1),
+                    SessionOptions(participant="01", data_dir=data))
     p = paths_of(data)
     lines = p.beh_tsv.read_bytes().split(b"\n")
     p.beh_tsv.write_bytes(b"\n".join(lines[:3] + lines[2:]))       # trial 2 twice

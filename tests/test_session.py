@@ -22,13 +22,14 @@ from vtexp.experiment import load_experiment
 from vtexp.log import sha256_file
 from vtexp.model import DeviceProfile
 from vtexp.responders import ScriptedResponder, make_responder
-from vtexp.session import SessionPaths, run_session
+from vtexp.session import SessionOptions, SessionPaths, run_session
 
 
 def run(lx, data, participant="01", session=1, responder=None):
     responder = responder or make_responder("scripted:accuracy=0.7", participant, session)
     with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
-        return run_session(lx, participant, session, dev, responder, data), dev
+        return run_session(lx, dev, responder, SessionOptions(
+            participant=participant, session=session, data_dir=data)), dev
 
 
 @pytest.fixture(scope="module")
@@ -282,8 +283,9 @@ def test_a_device_fault_pauses_the_session_for_the_experimenter(tmp_path, minima
         assert flaky.dev.state.max() == 0          # everything is off while paused
         return choice
     responder = make_responder("scripted:correct", "01", 1)
-    run = lambda: run_session(lx, "01", 1, flaky.dev, responder, tmp_path / "d",  # noqa: E731
-                              on_device_error=handler)
+    run = lambda: run_session(lx, flaky.dev, responder,  # noqa: E731
+                              SessionOptions(participant="01", data_dir=tmp_path / "d",
+                                             on_device_error=handler))
     if choice == "abort":
         with pytest.raises(Exception, match="lost contact"):
             run()
@@ -390,12 +392,13 @@ def test_resume_refuses_what_it_cannot_continue(tmp_path, minimal_yaml, grid_lx)
     res, _ = run(grid_lx, tmp_path)
     with pytest.raises(SessionError, match="already completed"):
         with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-            run_session(grid_lx, "01", 1, dev, make_responder("scripted:correct", "01", 1),
-                        tmp_path, resume=True)
+            run_session(grid_lx, dev, make_responder("scripted:correct", "01", 1),
+                        SessionOptions(participant="01", data_dir=tmp_path, resume=True))
     with pytest.raises(SessionError, match="no session 2 .* to resume"):
         with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-            run_session(grid_lx, "01", 2, dev, make_responder("scripted:correct", "01", 2),
-                        tmp_path, resume=True)
+            run_session(grid_lx, dev, make_responder("scripted:correct", "01", 2),
+                        SessionOptions(participant="01", session=2, data_dir=tmp_path,
+                                       resume=True))
     # A different experiment file (edited since the session began) is refused.
     lx = load_experiment(write_experiment(tmp_path, minimal_yaml))
     with pytest.raises(RuntimeError):
@@ -406,12 +409,12 @@ def test_resume_refuses_what_it_cannot_continue(tmp_path, minimal_yaml, grid_lx)
         "Which shape?", "Which shape did you feel?")))
     with pytest.raises(SessionError, match="SHA-256 differs"):
         with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-            run_session(edited, "01", 1, dev, make_responder("scripted:correct", "01", 1),
-                        tmp_path / "m", resume=True)
+            run_session(edited, dev, make_responder("scripted:correct", "01", 1),
+                        SessionOptions(participant="01", data_dir=tmp_path / "m", resume=True))
     # The same file continues at trial 3.
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-        res = run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1),
-                          tmp_path / "m", resume=True)
+        res = run_session(lx, dev, make_responder("scripted:correct", "01", 1),
+                          SessionOptions(participant="01", data_dir=tmp_path / "m", resume=True))
     assert res.status == "completed" and [r.trial for r in res.records] == [3, 4]
     assert list(read_session(res.paths.dir).trials["trial"]) == [1, 2, 3, 4]
 
@@ -448,8 +451,8 @@ def test_disk_full_stops_before_the_next_trial_with_the_reason(tmp_path, minimal
     assert meta["status"] == "failed" and "No space left" in meta["reason"]
     # With space again, the session resumes at trial 3.
     with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-        res = run_session(lx, "01", 1, dev, make_responder("scripted:correct", "01", 1),
-                          tmp_path / "d", resume=True)
+        res = run_session(lx, dev, make_responder("scripted:correct", "01", 1),
+                          SessionOptions(participant="01", data_dir=tmp_path / "d", resume=True))
     assert [r.trial for r in res.records] == [3, 4]
     assert list(read_session(d).trials["trial"]) == [1, 2, 3, 4]
     assert paths_events_complete(d)
@@ -482,8 +485,9 @@ def test_retry_while_still_unplugged_asks_again(tmp_path, minimal_yaml):
     def handler(error, trial):
         asked.append(str(error))
         return next(answers)
-    res = run_session(lx, "01", 1, flaky.dev, make_responder("scripted:correct", "01", 1),
-                      tmp_path / "d", on_device_error=handler)
+    res = run_session(lx, flaky.dev, make_responder("scripted:correct", "01", 1),
+                      SessionOptions(participant="01", data_dir=tmp_path / "d",
+                                     on_device_error=handler))
     assert res.status == "completed" and [r.status for r in res.records] == ["ok"] * 4
     assert asked == ["lost contact with the tactile device (test)",
                      "no device on the port (test)"]
@@ -507,9 +511,9 @@ def test_several_questions_give_one_row_each_and_resume_by_whole_trials(tmp_path
     assert list(zip(rows["trial"], rows["question"], rows["answer"])) == [
         ("1", "sensation", "3"), ("1", "turns", "2")]   # trial 2's one answer was not kept
     with open_device("sim", DeviceProfile.load("sma_5x5")) as dev:
-        res = run_session(lx, "01", 1, dev,
+        res = run_session(lx, dev,
                           ScriptedResponder(lambda q, t: "1" if q.name == "sensation" else "3"),
-                          tmp_path, resume=True)
+                          SessionOptions(participant="01", data_dir=tmp_path, resume=True))
     assert res.status == "completed" and res.records[0].trial == 2
     rows = pd.read_csv(paths.beh_tsv, sep="\t", dtype=str)
     assert len(rows) == 2 * 18 and list(rows["trial"][:4]) == ["1", "1", "2", "2"]
@@ -538,5 +542,5 @@ def test_resume_refuses_a_coding_file_changed_since_the_session_began(tmp_path, 
     changed = load_experiment(tmp_path / "exp.yaml")
     with pytest.raises(SessionError, match="coding file .*mine.yaml.* SHA-256 differs"):
         with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
-            run_session(changed, "01", 1, dev, make_responder("scripted:correct", "01", 1),
-                        tmp_path / "m", resume=True)
+            run_session(changed, dev, make_responder("scripted:correct", "01", 1),
+                        SessionOptions(participant="01", data_dir=tmp_path / "m", resume=True))

@@ -32,7 +32,7 @@ from vtexp.devices import open_device                    # noqa: E402
 from vtexp.errors import InputError, SessionAborted     # noqa: E402
 from vtexp.experiment import load_experiment            # noqa: E402
 from vtexp.model import DeviceProfile                   # noqa: E402
-from vtexp.session import run_session                   # noqa: E402
+from vtexp.session import SessionOptions, run_session   # noqa: E402
 
 SCREENS = ROOT / "test-output" / "screens"
 
@@ -128,7 +128,8 @@ def experiment(tmp_path, replays=0, break_every=None):
 
 def run(lx, tmp_path, resp):
     with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
-        res = run_session(lx, "01", 1, dev, resp, tmp_path / "data")
+        res = run_session(lx, dev, resp,
+                          SessionOptions(participant="01", data_dir=tmp_path / "data"))
     return res, dev
 
 
@@ -343,7 +344,7 @@ def test_escape_during_a_stimulus_stops_it_with_all_off_at_once(tmp_path, xvfb, 
     thread.start()
     with dev:
         with pytest.raises(SessionAborted) as aborted:
-            run_session(lx, "01", 1, dev, r, tmp_path / "data")
+            run_session(lx, dev, r, SessionOptions(participant="01", data_dir=tmp_path / "data"))
         ended = time.perf_counter()
         off = (float(dev.state.max()) == 0.0 if device.startswith("sim")
                else dev.emulator.all_outputs_off())

@@ -269,6 +269,25 @@ def known_participant(root: Path | str, participant: str) -> dict[str, str] | No
     return next((r for r in rows if r["participant_id"] == f"sub-{participant}"), None)
 
 
+def _refuse_contradiction(path: Path, row: dict[str, str], info: dict[str, str]) -> None:
+    """A value given that contradicts the participant's row: what was given at the first
+    session is kept."""
+    for name, value in info.items():
+        was = row.get(name, NA)
+        if was not in (NA, "") and value != NA and was != value:
+            raise InputError(f"{path} already says {name}={was} for {row['participant_id']}, "
+                             f"not {value}; what was given at the first session is kept (edit "
+                             "participants.tsv to correct it)", key="--participant-info")
+
+
+def check_participant_info(root: Path | str, participant: str, info: dict[str, str]) -> None:
+    """Refuse, before anything is written, a value that contradicts the participant's row
+    of participants.tsv (:func:`record_participant` checks again as it writes)."""
+    row = known_participant(root, participant)
+    if row is not None:
+        _refuse_contradiction(Path(root) / PARTICIPANTS, row, info)
+
+
 def record_participant(root: Path | str, participant: str, info: dict[str, str],
                        fields: dict[str, dict]) -> dict[str, str]:
     """Add the participant to participants.tsv (before their first session's folder
@@ -286,12 +305,8 @@ def record_participant(root: Path | str, participant: str, info: dict[str, str],
         if row is None:
             row = {"participant_id": pid}
             rows.append(row)
+        _refuse_contradiction(path, row, info)
         for name, value in info.items():
-            was = row.get(name, NA)
-            if was not in (NA, "") and value != NA and was != value:
-                raise InputError(f"{path} already says {name}={was} for {pid}, not {value}; "
-                                 "what was given at the first session is kept (edit "
-                                 "participants.tsv to correct it)", key="--participant-info")
             if value != NA:
                 row[name] = value
         text = "\t".join(columns) + "\n" + "".join(

@@ -50,7 +50,7 @@ def cmd_demo(args) -> int:
     from ..experiment import load_experiment
     from ..observer import ModelObserver, ObserverModel
     from ..resources import experiments_dir
-    from ..session import run_session
+    from ..session import SessionOptions, run_session
 
     t0 = time.perf_counter()
     root = Path(args.data)
@@ -78,9 +78,10 @@ def cmd_demo(args) -> int:
         n_trials = 0
         for i in range(1, args.participants + 1):
             pid = f"sim{i:02d}"
-            res = run_session(lx, pid, 1, SimDevice(model.profile),
-                              ModelObserver(model, pid, 1, seed=args.seed), root,
-                              conditions=conds, command=sys.argv)
+            res = run_session(lx, SimDevice(model.profile),
+                              ModelObserver(model, pid, 1, seed=args.seed),
+                              SessionOptions(participant=pid, data_dir=root,
+                                             conditions=conds, command=sys.argv))
             n_trials = len({r.trial for r in res.records})
         out(f"  {exp.title}\n    {exp.reference}; {exp.device}; {len(conds)} conditions x "
             f"{reps} repetition{'s' if reps > 1 else ''} = {n_trials} trials per participant: "

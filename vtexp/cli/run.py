@@ -16,7 +16,7 @@ complete and ready to paste.
 from __future__ import annotations
 
 import sys
-import time
+from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 
@@ -50,16 +50,28 @@ def format_minutes(seconds: float) -> str:
 
 
 class _Progress:
-    def __init__(self, quiet: bool, iti_s: float = 0.0, clock=time.time):
+    """The progress line: a consumer of the session's records that prints a line for each
+    row of each trial once it is on disk. ``clock()``: the wall clock's seconds."""
+
+    def __init__(self, quiet: bool, iti_s: float = 0.0, clock=None):
+        from ..clock import REAL
+
         self.quiet = quiet
         self.iti_s = iti_s
-        self.clock = clock
+        self.clock = clock or REAL.wall
         self.first_start: float | None = None
         self.trials: set[int] = set()
         self.correct = 0
         self.scored = 0
 
-    def __call__(self, rec, trial, total) -> None:
+    def __call__(self, record) -> None:
+        from ..session import TrialDone
+
+        if isinstance(record, TrialDone):
+            for rec in record.rows:
+                self._row(rec, record.trial, record.total)
+
+    def _row(self, rec, trial, total) -> None:
         self.trials.add(trial.number)
         if self.first_start is None:
             self.first_start = datetime.fromisoformat(rec.started_at).timestamp() \
@@ -92,31 +104,42 @@ def resume_command(file, participant: str, session: int, device: str | None,
     return " ".join(parts[:1] + [quote(p) for p in parts[1:]])
 
 
-def _run_one(lx, participant, session, device_spec, responder_spec, data, quiet, conds=None,
-             resume=False, *, check_device=False, test_pulse=False, max_trials=None,
-             force_device=False, participant_info=None, markers=()):
+def _prepare(args, lx, conds, participant: str, session: int, resume: bool,
+             device_spec: str, responder_spec: str, info: dict[str, str]):
+    """The device (made, not opened), the responder and the session's options, checked
+    against the experiment before anything is written or opened: a refusal here prints no
+    command to continue (there is nothing to continue)."""
     from ..devices import open_device
     from ..model import DeviceProfile
     from ..responders import make_responder
-    from ..session import check_participant, check_session, run_session
+    from ..session import SessionOptions, check_run
 
-    check_participant(participant)
-    check_session(session)
-    profile = DeviceProfile.load(lx.experiment.device)
     responder = make_responder(responder_spec, participant, session, lx)
-    device = open_device(device_spec, profile)
+    device = open_device(device_spec, DeviceProfile.load(lx.experiment.device))
+    options = SessionOptions(
+        participant=participant, session=session, data_dir=args.data, conditions=conds,
+        command=sys.argv, on_device_error=ask_experimenter if sys.stdin.isatty() else None,
+        resume=resume, max_trials=args.max_trials, device_spec=device_spec,
+        responder_spec=responder_spec, force_device=args.force_device,
+        capture_prompt=place_object if sys.stdin.isatty() else None,
+        participant_info=info, warn=_warn)
+    check_run(lx, device, responder, options)
+    return device, responder, options
+
+
+def _warn(text: str) -> None:
+    print(f"vtexp: warning: {text}", file=sys.stderr, flush=True)
+
+
+def _run_one(lx, device, responder, options, *, quiet: bool, test_pulse: bool, markers=()):
+    """The device checked, then the session, its records to the progress line and the
+    markers."""
+    from ..session import run_session
+
+    progress = _Progress(quiet, lx.experiment.design.iti_ms / 1000.0, device.clock.wall)
     with device:
-        if check_device:
-            _check_device(device, profile, test_pulse)
-        return run_session(lx, participant, session, device, responder, data, conditions=conds,
-                           sinks=(_Progress(quiet, lx.experiment.design.iti_ms / 1000.0),
-                                  *markers),
-                           command=sys.argv,
-                           on_device_error=ask_experimenter if sys.stdin.isatty() else None,
-                           resume=resume, max_trials=max_trials, device_spec=device_spec,
-                           responder_spec=responder_spec, force_device=force_device,
-                           capture_prompt=place_object if sys.stdin.isatty() else None,
-                           participant_info=participant_info)
+        _check_device(device, device.profile, test_pulse)
+        return run_session(lx, device, responder, options, consumers=(progress, *markers))
 
 
 def _check_device(device, profile, test_pulse: bool) -> None:
@@ -151,7 +174,7 @@ def _check_device(device, profile, test_pulse: bool) -> None:
     out("device check passed; no actuator is on")
 
 
-def open_marker_outputs(specs, lx, participant: str, session: int) -> list:
+def open_marker_outputs(specs, lx, participant: str, session: int, clock=None) -> list:
     """The ``--markers`` outputs, opened before the device: one that cannot be opened
     ends the run in one message, before any trial (those already open are closed)."""
     from ..markers import open_markers
@@ -160,8 +183,7 @@ def open_marker_outputs(specs, lx, participant: str, session: int) -> list:
     try:
         for spec in specs or ():
             m = open_markers(spec, experiment=lx.experiment.name, participant=participant,
-                             session=session, warn=lambda msg: print(f"vtexp: warning: {msg}",
-                                                                     file=sys.stderr, flush=True))
+                             session=session, warn=_warn, clock=clock)
             opened.append(m)
             out(f"markers: {m.description}"
                 + (f" (source_id {m.source_id})" if getattr(m, "source_id", None) else ""))
@@ -252,17 +274,24 @@ def _specs(args, lx, participant: str, session: int, resume: bool) -> tuple[str,
     return device or "sim", responder
 
 
-def _participant_info(args, lx, participant: str) -> dict[str, str]:
-    """What participants.tsv records of the participant: ``--participant-info``, and at a
-    terminal, for a participant the dataset does not know yet, the fields not given
-    (never asked of model participants, nor without a terminal)."""
+def _given_info(args, lx) -> dict[str, str]:
+    """What ``--participant-info`` gives, each value checked."""
+    from .. import bids
+
+    fields = bids.participant_fields(lx.experiment.participants)
+    return bids.check_info(bids.parse_info(args.participant_info), fields)
+
+
+def _participant_info(args, lx, participant: str, info: dict[str, str]) -> dict[str, str]:
+    """What participants.tsv records of the participant: ``info`` (``--participant-info``),
+    and at a terminal, for a participant the dataset does not know yet, the fields not
+    given (never asked of model participants, nor without a terminal)."""
     from .. import bids
     from ..errors import SessionAborted
     from ..session import SIMULATED_PREFIX
 
     exp = lx.experiment
     fields = bids.participant_fields(exp.participants)
-    info = bids.check_info(bids.parse_info(args.participant_info), fields)
     root = Path(args.data) / exp.name
     known = bids.known_participant(root, participant)
     if known is not None or not sys.stdin.isatty() or \
@@ -286,8 +315,14 @@ def cmd_run(args) -> int:
     lx, conds = load_and_compile(args.file)
     _report_dead(args, lx)
     participant, session, resume = _who_and_which(args, lx)
-    device, responder = _specs(args, lx, participant, session, resume)
-    info = _participant_info(args, lx, participant)
+    device_spec, responder_spec = _specs(args, lx, participant, session, resume)
+    given = _given_info(args, lx)
+    device, responder, options = _prepare(args, lx, conds, participant, session, resume,
+                                          device_spec, responder_spec, given)
+    # A participant new to the dataset is asked what was not given (nothing it can
+    # contradict): after the checks, so that a run refused asks nothing.
+    options = replace(options, participant_info=_participant_info(args, lx, participant,
+                                                                  given))
     paths = SessionPaths.of(args.data, lx.experiment.name, lx.experiment.task_label,
                             participant, session)
 
@@ -298,16 +333,14 @@ def cmd_run(args) -> int:
             return None
         return (f"To continue session {session} of participant {participant} where it "
                 "stopped:\n  " + resume_command(args.file, participant, session,
-                                                rec.get("device") or device,
-                                                rec.get("responder") or responder, args.data))
+                                                rec.get("device") or device_spec,
+                                                rec.get("responder") or responder_spec,
+                                                args.data))
     args.after_error = hint
-    markers = open_marker_outputs(args.markers, lx, participant, session)
+    markers = open_marker_outputs(args.markers, lx, participant, session, device.clock)
     try:
-        res = _run_one(lx, participant, session, device, responder,
-                       args.data, args.quiet, conds, resume=resume, check_device=True,
-                       test_pulse=args.test_pulse, max_trials=args.max_trials,
-                       force_device=args.force_device, participant_info=info,
-                       markers=markers)
+        res = _run_one(lx, device, responder, options, quiet=args.quiet,
+                       test_pulse=args.test_pulse, markers=markers)
     finally:
         for m in markers:
             m.close()
@@ -320,7 +353,8 @@ def cmd_run(args) -> int:
     if res.status == "aborted":             # only --max-trials ends a run this way
         out(f"stopped after {n} trial{'' if n == 1 else 's'} as asked (--max-trials "
             f"{args.max_trials}); to continue: "
-            + resume_command(args.file, participant, session, device, responder, args.data))
+            + resume_command(args.file, participant, session, device_spec, responder_spec,
+                             args.data))
     return 0
 
 

@@ -1,8 +1,9 @@
 """Event markers for recorders that run beside a session (EEG, skin conductance).
 
-A marker output is a session sink (:class:`MarkerSink`): besides the trial records
-every sink gets, it is told as things happen (a trial starts, a play starts, an
-answer is taken, a trial is on disk, the session ends) and passes them on:
+A marker output is a consumer of the session's records (:class:`MarkerSink`,
+:mod:`vtexp.session.records`): it hears each thing as it happens (the session starts,
+a trial starts, a play starts, an answer is taken, a trial is on disk, the session
+ends) and passes it on:
 
 - ``lsl`` (:mod:`vtexp.markers.lsl`): a Lab Streaming Layer stream of type
   ``Markers``, one JSON string per pulse, answer, trial start and end, each stamped
@@ -41,33 +42,45 @@ class MarkerError(VtexpError):
 
 
 class MarkerSink:
-    """A session sink that also hears events as they happen; every hook does nothing here.
+    """A consumer of a session's records that passes them on to a recorder.
 
-    Hooks (called by :func:`vtexp.session.run_session`, host times are
-    ``time.monotonic()`` in ms):
+    :meth:`__call__` hands each record to the method named for its type, when the
+    output has one (host times are the session clock's ms, ``Clock.now_ms``):
 
-    - ``session_started(info)``: ``{experiment, participant, session, resume, done}``;
-    - ``trial_started(trial, host_ms)``: each attempt at a trial (a retry after a device
-      fault starts it again);
-    - ``play_started(device_ms, host_ms)``: a play starts on the device (its start on the
-      device's clock, and on the host's when known);
-    - ``answered(trial, question, response, asked_host_ms, answered_host_ms)``;
-    - ``trial_logged(trial, records, plays)``: the trial's rows and events are on disk;
-    - ``session_ended(status)``.
+    - ``session_started(record)``: :class:`~vtexp.session.records.SessionStarted`;
+    - ``trial_started(record)``: each attempt at a trial (a retry after a device fault
+      starts it again);
+    - ``play_started(record)``: a play starts on the device (its start on the device's
+      clock, and on the host's when known);
+    - ``answered(record)``: the question, the response, when it was asked and answered;
+    - ``trial_done(record)``: the trial's rows and events are on disk (the session's
+      writer has it before any marker output);
+    - ``session_ended(record)``.
 
-    A sink must not raise from a hook: a recorder that goes away must not end a
-    participant's session. It warns once (``warn``) and counts what it lost.
+    An output must not raise: a recorder that goes away must not end a participant's
+    session. It warns once (``warn``) and counts what it lost. (Should one raise all
+    the same, the session warns and goes on.)
     """
 
     description = "markers"
 
-    def __init__(self, warn=None):
+    #: The record type's name -> the method that takes it.
+    HANDLERS = {"SessionStarted": "session_started", "TrialStarted": "trial_started",
+                "PlayStarted": "play_started", "Answered": "answered",
+                "TrialDone": "trial_done", "SessionEnded": "session_ended"}
+
+    def __init__(self, warn=None, clock=None):
+        from ..clock import REAL
+
         self.warn = warn
+        self.clock = clock or REAL
         self.lost = 0
         self._warned = False
 
-    def __call__(self, record, trial, total) -> None:      # a TrialSink: nothing to do
-        pass
+    def __call__(self, record) -> None:
+        handler = getattr(self, self.HANDLERS.get(type(record).__name__, ""), None)
+        if callable(handler):
+            handler(record)
 
     def failed(self, what: str) -> None:
         self.lost += 1
@@ -104,8 +117,9 @@ def parse_spec(spec: str) -> tuple[str, str, dict[str, str]]:
 
 
 def open_markers(spec: str, *, experiment: str, participant: str, session: int,
-                 warn=None) -> MarkerSink:
-    """Open the marker output ``spec`` names (see the module docstring)."""
+                 warn=None, clock=None) -> MarkerSink:
+    """Open the marker output ``spec`` names (see the module docstring); ``clock``: the
+    session's (:class:`~vtexp.clock.Clock`, the real one unless given)."""
     kind, target, opts = parse_spec(spec)
     if kind == "lsl":
         from .lsl import LslMarkers
@@ -114,7 +128,8 @@ def open_markers(spec: str, *, experiment: str, participant: str, session: int,
         if unknown or target:
             raise InputError(f"{spec!r}: lsl takes only name=NAME", key="--markers")
         return LslMarkers.open(experiment=experiment, participant=participant,
-                               session=session, name=opts.get("name"), warn=warn)
+                               session=session, name=opts.get("name"), warn=warn,
+                               clock=clock)
     if kind in ("serial", "parallel"):
         from .trigger import ParallelTrigger, SerialTrigger
 
@@ -123,6 +138,6 @@ def open_markers(spec: str, *, experiment: str, participant: str, session: int,
             what = "port" if kind == "serial" else "address"
             raise InputError(f"{spec!r}: give the {what}, e.g. {example}", key="--markers")
         cls = SerialTrigger if kind == "serial" else ParallelTrigger
-        return cls.open(target, opts, warn=warn)
+        return cls.open(target, opts, warn=warn, clock=clock)
     raise InputError(f"unknown marker output {spec!r}: lsl, serial:PORT[,baud=N,reset_ms=N] "
                      "or parallel:ADDRESS", key="--markers")

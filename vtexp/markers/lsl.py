@@ -13,33 +13,34 @@ with ``event`` one of ``session_start``, ``trial_start``, ``pulse``, ``answer``,
 
 **Timestamps are when it happened, not when it was pushed.** A pulse is stamped
 with the onset the device reported (the events file's ``onset_ms``, also in the
-marker as ``device_ms``), put on this computer's ``time.monotonic`` clock through
-the play's clock mapping (``PlayReport.started_at_host_ms``, from the device's
-heartbeats: ``vtexp.devices.clock``) and then on LSL's clock: ``local_clock()``
-minus ``time.monotonic()``, measured when the stream opens (on Linux both read
-CLOCK_MONOTONIC, and the offset is below a microsecond). A trial's markers are
-pushed once its row is on disk, so the stream holds exactly what the session
-logged (a trial played again after a device fault is marked once); a recorder
-orders them by their stamps.
+marker as ``device_ms``), put on this computer's monotonic clock (the session's
+:class:`~vtexp.clock.Clock`, ``time.monotonic`` on the real one) through the play's
+clock mapping (``PlayReport.started_at_host_ms``, from the device's heartbeats:
+``vtexp.devices.clock``) and then on LSL's clock: ``local_clock()`` minus the clock's
+``now()``, measured when the stream opens (on Linux both read CLOCK_MONOTONIC, and the
+offset is below a microsecond). A trial's markers are pushed once its row is on disk
+(the stream takes the session's ``TrialDone`` record after the session's writer), so
+the stream holds exactly what the session logged (a trial played again after a device
+fault is marked once); a recorder orders them by their stamps.
 """
 
 from __future__ import annotations
 
 import json
 import statistics
-import time
 from typing import Any
 
+from ..clock import REAL
 from . import MarkerError, MarkerSink
 
 
-def monotonic_to_lsl_s(local_clock) -> float:
-    """``local_clock() − time.monotonic()`` in s: the median of 15 bracketed readings."""
+def monotonic_to_lsl_s(local_clock, clock=REAL) -> float:
+    """``local_clock() − clock.now()`` in s: the median of 15 bracketed readings."""
     offs = []
     for _ in range(15):
-        a = time.monotonic()
+        a = clock.now()
         b = local_clock()
-        c = time.monotonic()
+        c = clock.now()
         offs.append(b - (a + c) / 2.0)
     return statistics.median(offs)
 
@@ -92,8 +93,9 @@ class LslMarkers(MarkerSink):
 
     description = "LSL marker stream"
 
-    def __init__(self, outlet, info, local_clock, offset_s: float, source_id: str, warn=None):
-        super().__init__(warn)
+    def __init__(self, outlet, info, local_clock, offset_s: float, source_id: str, warn=None,
+                 clock=None):
+        super().__init__(warn, clock)
         self.outlet = outlet
         self.info = info
         self.local_clock = local_clock
@@ -106,7 +108,7 @@ class LslMarkers(MarkerSink):
 
     @classmethod
     def open(cls, *, experiment: str, participant: str, session: int, name: str | None = None,
-             warn=None) -> LslMarkers:
+             warn=None, clock=None) -> LslMarkers:
         try:
             import pylsl
         except ImportError as e:
@@ -121,7 +123,7 @@ class LslMarkers(MarkerSink):
         try:
             info = pylsl.StreamInfo(name or f"vtexp {experiment}", "Markers", 1,
                                     pylsl.IRREGULAR_RATE, "string", source_id)
-            offset = monotonic_to_lsl_s(pylsl.local_clock)
+            offset = monotonic_to_lsl_s(pylsl.local_clock, clock or REAL)
             desc = info.desc()
             for k, v in (("experiment", experiment), ("participant", participant),
                          ("session", str(session)), ("vtexp_version", __version__),
@@ -135,9 +137,9 @@ class LslMarkers(MarkerSink):
             outlet = pylsl.StreamOutlet(info)
         except Exception as e:
             raise MarkerError(f"cannot open the LSL marker stream {source_id!r}: {e}") from None
-        return cls(outlet, info, pylsl.local_clock, offset, source_id, warn)
+        return cls(outlet, info, pylsl.local_clock, offset, source_id, warn, clock)
 
-    # -- hooks ------------------------------------------------------------------------------
+    # -- records ----------------------------------------------------------------------------
     def _push(self, host_ms: float, marker: dict) -> None:
         if self.outlet is None:
             return
@@ -148,25 +150,31 @@ class LslMarkers(MarkerSink):
         except Exception as e:
             self.failed(f"a marker could not be pushed ({e})")
 
-    def session_started(self, info: dict) -> None:
-        self._push(time.monotonic() * 1000.0, {"event": "session_start", **info})
+    def session_started(self, r) -> None:
+        self._push(r.host_ms, {"event": "session_start", "experiment": r.experiment,
+                               "participant": r.participant, "session": r.session,
+                               "resume": r.resume, "trials_done": r.trials_done})
 
-    def trial_started(self, trial, host_ms: float) -> None:
-        self._trial_start = host_ms
+    def trial_started(self, r) -> None:
+        self._trial_start = r.host_ms
         self._answers = {}
 
-    def answered(self, trial, question, response, asked_ms: float, answered_ms: float) -> None:
-        self._answers[question.name] = (asked_ms, answered_ms)
+    def answered(self, r) -> None:
+        self._answers[r.question.name] = (r.asked_host_ms, r.answered_host_ms)
 
-    def trial_logged(self, trial, records, plays) -> None:
-        now = time.monotonic() * 1000.0
-        markers = trial_markers(trial, records, plays, self._trial_start, self._answers, now)
-        self.unmapped += sum(len(r.pulses) for r in plays if r.started_at_host_ms is None)
+    def trial_done(self, r) -> None:
+        # Here the trial is on disk (the session's writer took the record first).
+        now = self.clock.now_ms()
+        markers = trial_markers(r.trial, r.rows, r.plays, self._trial_start, self._answers,
+                                now)
+        self.unmapped += sum(len(p.pulses) for p in r.plays if p.started_at_host_ms is None)
+        self._trial_start = None            # a trial with no start of its own gets none
+        self._answers = {}
         for host_ms, m in markers:
             self._push(host_ms, m)
 
-    def session_ended(self, status: str) -> None:
-        self._push(time.monotonic() * 1000.0, {"event": "session_end", "status": status})
+    def session_ended(self, r) -> None:
+        self._push(r.host_ms, {"event": "session_end", "status": r.status})
 
     def close(self) -> None:
         self.outlet = None      # liblsl closes the outlet when its last reference goes

@@ -17,19 +17,24 @@ until told otherwise); a parallel port is always reset (``pulse_ms``, default 5)
 from __future__ import annotations
 
 import threading
-import time
 
 from ..errors import InputError
 from . import CODES, MarkerError, MarkerSink
 
 
 class _ByteTrigger(MarkerSink):
-    """Sends :data:`CODES` as the session's events happen; subclasses write a byte."""
+    """Sends :data:`CODES` as the session's records come, each at the moment of its
+    event; subclasses write a byte."""
 
-    def __init__(self, reset_ms: float | None, warn=None):
-        super().__init__(warn)
+    #: The record type's name -> the event whose code it sends.
+    EVENTS = {"SessionStarted": "session_start", "TrialStarted": "trial_start",
+              "PlayStarted": "stimulus", "Answered": "answer", "TrialDone": "trial_end",
+              "SessionEnded": "session_end"}
+
+    def __init__(self, reset_ms: float | None, warn=None, clock=None):
+        super().__init__(warn, clock)
         self.reset_ms = reset_ms
-        self.sent: list[tuple[float, int]] = []      # (host monotonic s, code)
+        self.sent: list[tuple[float, int]] = []      # (the clock's monotonic s, code)
         self._lock = threading.Lock()
         self._timer: threading.Timer | None = None
 
@@ -44,7 +49,7 @@ class _ByteTrigger(MarkerSink):
                 self._timer = None
             try:
                 self._write(code)
-                self.sent.append((time.monotonic(), code))
+                self.sent.append((self.clock.now(), code))
             except Exception as e:
                 self.failed(f"code {code} ({event}) could not be sent ({e})")
                 return
@@ -60,23 +65,10 @@ class _ByteTrigger(MarkerSink):
             except Exception as e:
                 self.failed(f"the reset to 0 could not be sent ({e})")
 
-    def session_started(self, info) -> None:
-        self.send("session_start")
-
-    def trial_started(self, trial, host_ms) -> None:
-        self.send("trial_start")
-
-    def play_started(self, device_ms, host_ms) -> None:
-        self.send("stimulus")
-
-    def answered(self, trial, question, response, asked_ms, answered_ms) -> None:
-        self.send("answer")
-
-    def trial_logged(self, trial, records, plays) -> None:
-        self.send("trial_end")
-
-    def session_ended(self, status) -> None:
-        self.send("session_end")
+    def __call__(self, record) -> None:
+        event = self.EVENTS.get(type(record).__name__)
+        if event is not None:
+            self.send(event)
 
     def close(self) -> None:
         with self._lock:
@@ -113,13 +105,13 @@ def _number(opts: dict, key: str, default: float | None, spec: str) -> float | N
 class SerialTrigger(_ByteTrigger):
     """A trigger box on a serial port (``serial:PORT[,baud=N,reset_ms=N]``)."""
 
-    def __init__(self, port, name: str, reset_ms: float | None, warn=None):
-        super().__init__(reset_ms, warn)
+    def __init__(self, port, name: str, reset_ms: float | None, warn=None, clock=None):
+        super().__init__(reset_ms, warn, clock)
         self.port = port
         self.description = f"trigger box on {name}"
 
     @classmethod
-    def open(cls, target: str, opts: dict, warn=None) -> SerialTrigger:
+    def open(cls, target: str, opts: dict, warn=None, clock=None) -> SerialTrigger:
         import serial
 
         spec = f"serial:{target}"
@@ -132,7 +124,7 @@ class SerialTrigger(_ByteTrigger):
         except (serial.SerialException, ValueError, OSError) as e:
             raise MarkerError(f"cannot open the trigger box on {target!r}: {e}. "
                               "'vtexp device list' shows the serial ports found.") from None
-        return cls(port, target, reset, warn)
+        return cls(port, target, reset, warn, clock)
 
     def _write(self, code: int) -> None:
         self.port.write(bytes((code,)))
@@ -150,13 +142,13 @@ class ParallelTrigger(_ByteTrigger):
     """A parallel port's data lines (``parallel:ADDRESS``: ``/dev/parport0`` on Linux,
     ``0x378`` on Windows), through PsychoPy's ``psychopy.parallel`` (the ``gui`` extra)."""
 
-    def __init__(self, port, name: str, pulse_ms: float, warn=None):
-        super().__init__(pulse_ms, warn)
+    def __init__(self, port, name: str, pulse_ms: float, warn=None, clock=None):
+        super().__init__(pulse_ms, warn, clock)
         self.port = port
         self.description = f"parallel port {name}"
 
     @classmethod
-    def open(cls, target: str, opts: dict, warn=None) -> ParallelTrigger:
+    def open(cls, target: str, opts: dict, warn=None, clock=None) -> ParallelTrigger:
         spec = f"parallel:{target}"
         _known(opts, spec, ("pulse_ms",))
         pulse = _number(opts, "pulse_ms", 5.0, spec) or 5.0
@@ -179,7 +171,7 @@ class ParallelTrigger(_ByteTrigger):
                 f"cannot open the parallel port {target!r}: {e}. On Linux the port is "
                 "/dev/parport0 (kernel module ppdev loaded, your user in group lp); on "
                 "Windows an address such as 0x378 with the inpout32 driver installed.") from None
-        return cls(port, target, pulse, warn)
+        return cls(port, target, pulse, warn, clock)
 
     def _write(self, code: int) -> None:
         self.port.setData(code)

@@ -39,6 +39,11 @@ class Responder(Protocol):
     ``replay`` plays the stimulus again when the participant asks to feel it
     again (None when the question allows no replays); the responder counts
     the replays it used.
+
+    A responder that cannot answer every kind of question may have
+    ``check_questions(questions)``: the session calls it with the experiment's
+    questions before anything is written or opened, and it raises
+    :class:`vtexp.errors.InputError` (naming ``--responder``) for one it cannot answer.
     """
 
     description: str

@@ -32,7 +32,8 @@ Rule = Callable[[ChoiceQuestion, Trial], str]
 class ScriptedResponder:
     participant_kind = "scripted"      # not a person: kept apart in analyses
     def __init__(self, rule: Rule | None = None, *, answers: Sequence[str] | None = None,
-                 description: str = "scripted", replays: int = 0):
+                 description: str = "scripted", replays: int = 0,
+                 needs_correct: bool = False):
         if (rule is None) == (answers is None):
             raise ValueError("give a rule or a list of answers")
         self._rule = rule
@@ -40,6 +41,23 @@ class ScriptedResponder:
         self._next = 0
         self.description = description
         self.replays = replays
+        self.needs_correct = needs_correct      # the rule answers with the correct option
+
+    def check_questions(self, questions) -> None:
+        """Refuse, before a session starts, questions this responder cannot answer: an
+        unscored one for ``scripted:correct``, none that an answer of the list is one of."""
+        unscored = [q for q in questions if q.correct is None] if self.needs_correct else []
+        if unscored:
+            q = unscored[0]
+            raise InputError(f"{self.description} needs a question with a correct answer, but "
+                             f"question {q.name!r} ({getattr(q, 'kind', 'choice')}) has none; "
+                             "use scripted:random or scripted:answers=FILE",
+                             key="--responder")
+        options = {o for q in questions for o in q.options}
+        for i, answer in enumerate(self._answers or ()):
+            if answer not in options:
+                raise InputError(f"answer {i + 1} of the list, {answer!r}, is not an option of "
+                                 f"any question ({sorted(options)})", key="--responder")
 
     def resume_at(self, trials_done: int) -> None:
         """A resumed session continues with the answer for the next trial."""
@@ -82,7 +100,7 @@ def make_scripted(spec: str, participant: str, session: int, lx=None) -> Scripte
                 raise InputError("scripted:correct needs a question with a correct answer",
                                  key="--responder")
             return c
-        return ScriptedResponder(pick, description="scripted:correct")
+        return ScriptedResponder(pick, description="scripted:correct", needs_correct=True)
     if rule == "random":
         return ScriptedResponder(
             lambda q, t: q.options[_rng(participant, session, t, "random").below(len(q.options))],
