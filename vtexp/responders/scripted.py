@@ -21,9 +21,10 @@ from __future__ import annotations
 from pathlib import Path
 from collections.abc import Callable, Sequence
 
-from ..design import HashRandom, Trial, derive_seed
+from ..design import Trial
 from ..errors import InputError
 from ..experiment import ChoiceQuestion
+from ..seeding import HashRandom, derive_seed
 from .base import Replay, Response, correct_answer
 
 Rule = Callable[[ChoiceQuestion, Trial], str]
