@@ -10,7 +10,6 @@ safety limits, so an unsafe declaration is refused before any session.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -20,32 +19,13 @@ from .coding import CODINGS
 from .encoding import PIPELINES
 from .errors import InputError, UnsafeStimulus
 from .experiment import LoadedExperiment, load_experiment
-from .model import DeviceProfile, Pattern, Schedule
+from .model import Condition, DeviceProfile, Pattern, Schedule
 from .safety import check_schedule
 from .stimuli import read_image, render
 
 
-@dataclass
-class Condition:
-    index: int                               # 0-based, in declaration order
-    levels: dict[str, str]                   # factor -> level
-    stimulus: str
-    encoding_params: dict[str, Any]
-    coding_params: dict[str, Any]
-    pattern: Pattern | None = field(default=None, repr=False)
-    schedule: Schedule | None = field(default=None, repr=False)
-    camera: bool = False                     # the stimulus is taken at each trial
-    adaptive_params: dict[str, Any] = field(default_factory=dict)   # sets: adaptive
-    #: with an adaptive procedure: the schedule at each level it may play
-    schedules: dict[float, Schedule] | None = field(default=None, repr=False)
-    #: with an adaptive stimulus parameter: the pattern at each level
-    patterns: dict[float, Pattern] | None = field(default=None, repr=False)
-    #: generator parameters that override the stimulus's (an adaptive level, at a trial)
-    stimulus_params: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def label(self) -> str:
-        return ", ".join(f"{k}={v}" for k, v in self.levels.items())
+# Condition lives in the data model (vtexp.model); code that imports it from here keeps
+# working.
 
 
 def enumerate_conditions(lx: LoadedExperiment) -> list[Condition]:

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .compile import Condition
 from .experiment import Experiment
+from .model import Condition
 from .seeding import HashRandom, derive_seed, shuffled
 
 

@@ -36,12 +36,12 @@ from .analysis.anova import MissingCellsWarning, rm_anova_batch
 from .analysis.ordinal import friedman
 from .analysis.pipeline import _subset, participant_measures
 from .analysis.spec import AnalysisSpec, default_spec
-from .compile import Condition, compile_conditions
+from .compile import compile_conditions
 from .design import trial_list
 from .devices.sim import SimDevice
 from .errors import InputError
 from .experiment import LoadedExperiment, load_experiment, load_experiment_text
-from .model import PlayReport
+from .model import Condition, PlayReport
 from .observer.model import ObserverModel, question_columns
 from .responders.base import correct_answer
 

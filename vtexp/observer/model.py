@@ -35,10 +35,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
-from ..compile import Condition, code, encode, stimulus_image
+from ..compile import code, encode, stimulus_image
 from ..errors import InputError
 from ..experiment import LoadedExperiment
-from ..model import DeviceProfile, PlayReport
+from ..model import Condition, DeviceProfile, PlayReport
 from .params import (
     ObserverParams,
     Participant,
