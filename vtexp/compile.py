@@ -10,11 +10,13 @@ safety limits, so an unsafe declaration is refused before any session.
 from __future__ import annotations
 
 import itertools
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .adaptive.spec import parameter_value, value_list
 from .coding import CODINGS
 from .encoding import PIPELINES
 from .errors import InputError, UnsafeStimulus
@@ -22,7 +24,6 @@ from .experiment import LoadedExperiment, load_experiment
 from .model import Condition, DeviceProfile, Pattern, Schedule
 from .safety import check_schedule
 from .stimuli import read_image, render
-
 
 # Condition lives in the data model (vtexp.model); code that imports it from here keeps
 # working.
@@ -129,9 +130,6 @@ def _compile_levels(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) 
     """Code the condition at every level the adaptive procedure may play, each checked
     against the device's safety limits before the session: a procedure can only
     propose what was checked. ``c.schedule`` is the schedule at the first level."""
-    from .adaptive.spec import value_list
-    from .adaptive.track import _number
-
     spec = lx.experiment.adaptive
     c.schedules = {}
     on_stimulus = spec.sets == "stimulus"
@@ -139,16 +137,17 @@ def _compile_levels(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) 
         c.patterns = {}
     for v in value_list(spec.values):
         pattern = c.pattern
+        value = parameter_value(v)
         try:
             if on_stimulus:
-                image = stimulus_image(lx, c.stimulus, profile, {spec.variable: _number(v)})
+                image = stimulus_image(lx, c.stimulus, profile, {spec.variable: value})
                 pattern = encode(lx, image, profile, c.encoding_params)
                 if not pattern.points:
                     raise InputError("the stimulus gives an empty pattern")
                 c.patterns[v] = pattern
                 s = code(lx, pattern, profile, c.coding_params)
             else:
-                s = code(lx, pattern, profile, {**c.coding_params, spec.variable: _number(v)})
+                s = code(lx, pattern, profile, {**c.coding_params, spec.variable: value})
             check_schedule(s, profile)
         except (UnsafeStimulus, InputError, ValueError) as e:
             raise lx.error(f"condition {c.label} at {spec.variable} = {v:g}: unsafe or "
@@ -163,8 +162,6 @@ def _compile_levels(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) 
 def _check_camera_condition(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) -> None:
     """A camera condition's coding on this device, tried on a one-point pattern (its image
     is taken when the trial runs)."""
-    import warnings
-
     encoding_params(lx, c.encoding_params)
     probe = Pattern(rows=profile.rows, cols=profile.cols,
                     points=[{"row": 0, "col": 0, "line": 1, "order": 0}])

@@ -58,7 +58,8 @@ from pathlib import Path
 from typing import Callable, Protocol
 
 from . import __version__
-from .adaptive.track import AdaptiveRun, _number
+from .adaptive.spec import parameter_value as _number
+from .adaptive.track import AdaptiveRun
 from .compile import Condition, compile_conditions
 from .design import Trial, trial_list
 from .devices.base import DeviceBase
