@@ -29,6 +29,7 @@ from typing_extensions import Self
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import InputError
+from .resources import devices_dir
 
 
 class Model(BaseModel):
@@ -162,7 +163,7 @@ class DeviceProfile(Model):
     @classmethod
     def load(cls, name_or_path: str | Path) -> DeviceProfile:
         """Load a profile by name (``protocols/devices/NAME.yaml``) or from a path."""
-        from .resources import devices_dir
+        # Here: the data model itself needs pydantic alone, not YAML.
         from .yamlio import format_validation_error, load_yaml
 
         p = Path(name_or_path)
@@ -180,8 +181,6 @@ class DeviceProfile(Model):
 
 
 def available_profiles() -> list[str]:
-    from .resources import devices_dir
-
     d = devices_dir()
     return sorted(p.stem for p in d.glob("*.yaml")) if d.is_dir() else []
 

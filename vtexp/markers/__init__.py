@@ -108,7 +108,7 @@ def open_markers(spec: str, *, experiment: str, participant: str, session: int,
     """Open the marker output ``spec`` names (see the module docstring)."""
     kind, target, opts = parse_spec(spec)
     if kind == "lsl":
-        from .lsl import LslMarkers
+        from .lsl import LslMarkers                  # it imports MarkerSink from here
 
         unknown = set(opts) - {"name"}
         if unknown or target:
@@ -116,7 +116,7 @@ def open_markers(spec: str, *, experiment: str, participant: str, session: int,
         return LslMarkers.open(experiment=experiment, participant=participant,
                                session=session, name=opts.get("name"), warn=warn)
     if kind in ("serial", "parallel"):
-        from .trigger import ParallelTrigger, SerialTrigger
+        from .trigger import ParallelTrigger, SerialTrigger     # likewise
 
         if not target:
             example = "serial:/dev/ttyUSB0" if kind == "serial" else "parallel:/dev/parport0"
