@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import re
 
+from . import __version__
 from .errors import InputError, VtexpError
 
 _ADDRESS = re.compile(r"^(?:dask://|tcp://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
@@ -40,7 +41,6 @@ def scheduler_address(spec: str) -> str:
 
 
 def _worker_vtexp() -> str:
-    from . import __version__
     return __version__
 
 
@@ -64,7 +64,6 @@ def connect(spec: str, timeout_s: float = 5.0):
         if not workers:
             raise ClusterError(f"the Dask scheduler at {address} has no workers; start some "
                                f"with 'dask worker {address}'")
-        from . import __version__
         try:
             versions = client.run(_worker_vtexp)
         except Exception as e:

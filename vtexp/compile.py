@@ -5,47 +5,29 @@ order the factors and levels are declared). Compiling a condition renders its
 stimulus, runs the encoding pipeline, codes the Pattern into a Schedule for
 the experiment's device, and checks that Schedule against the device's
 safety limits, so an unsafe declaration is refused before any session.
+:func:`compile_stimulus` is that path for one stimulus; ``vtexp encode`` takes it too.
 """
 
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .adaptive.spec import parameter_value, value_list
 from .coding import CODINGS
 from .encoding import PIPELINES
 from .errors import InputError, UnsafeStimulus
 from .experiment import LoadedExperiment, load_experiment
-from .model import DeviceProfile, Pattern, Schedule
+from .model import Condition, DeviceProfile, Pattern, Schedule
 from .safety import check_schedule
 from .stimuli import read_image, render
 
-
-@dataclass
-class Condition:
-    index: int                               # 0-based, in declaration order
-    levels: dict[str, str]                   # factor -> level
-    stimulus: str
-    encoding_params: dict[str, Any]
-    coding_params: dict[str, Any]
-    pattern: Pattern | None = field(default=None, repr=False)
-    schedule: Schedule | None = field(default=None, repr=False)
-    camera: bool = False                     # the stimulus is taken at each trial
-    adaptive_params: dict[str, Any] = field(default_factory=dict)   # sets: adaptive
-    #: with an adaptive procedure: the schedule at each level it may play
-    schedules: dict[float, Schedule] | None = field(default=None, repr=False)
-    #: with an adaptive stimulus parameter: the pattern at each level
-    patterns: dict[float, Pattern] | None = field(default=None, repr=False)
-    #: generator parameters that override the stimulus's (an adaptive level, at a trial)
-    stimulus_params: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def label(self) -> str:
-        return ", ".join(f"{k}={v}" for k, v in self.levels.items())
+# Condition lives in the data model (vtexp.model); code that imports it from here keeps
+# working.
 
 
 def enumerate_conditions(lx: LoadedExperiment) -> list[Condition]:
@@ -93,9 +75,71 @@ def stimulus_image(lx: LoadedExperiment, name: str, profile: DeviceProfile | Non
                   profile.cols)
 
 
+def checked_encoding_params(pipeline: str, params: dict[str, Any]) -> dict[str, Any]:
+    """``params`` checked against ``pipeline``'s parameter model, with its defaults filled
+    in; pydantic's ``ValidationError`` if they do not fit it."""
+    return PIPELINES[pipeline][1].model_validate(params).model_dump()
+
+
+def checked_coding_params(protocol: str, params: dict[str, Any]) -> dict[str, Any]:
+    """``params`` checked against coding ``protocol``'s parameter model, with its defaults
+    filled in; pydantic's ``ValidationError`` if they do not fit it."""
+    return CODINGS[protocol][1].model_validate(params).model_dump()
+
+
+def compile_stimulus(image: np.ndarray | None, profile: DeviceProfile, *, pipeline: str,
+                     encoding_params: dict[str, Any], protocol: str,
+                     coding_params: dict[str, Any], pattern: Pattern | None = None
+                     ) -> tuple[Pattern, Schedule | None]:
+    """One stimulus on a device: ``image`` (a gray image, from a file, a camera or a
+    generator) through the encoding ``pipeline`` into a Pattern (where, in what order),
+    the Pattern through the coding ``protocol`` into a Schedule (when, how strong, how
+    long), and the Schedule checked against ``profile``'s safety limits.
+
+    Parameters
+    ----------
+    image
+        The stimulus image; not used when ``pattern`` is given.
+    profile
+        The device: its grid for the encoding, its drive for the coding, its limits.
+    pipeline, encoding_params
+        A name from :data:`vtexp.encoding.PIPELINES` and its parameters (checked, the
+        defaults filled in: :func:`checked_encoding_params`).
+    protocol, coding_params
+        A name from :data:`vtexp.coding.CODINGS` and its parameters (likewise,
+        :func:`checked_coding_params`).
+    pattern
+        The image's Pattern with these encoding parameters, if it was encoded before
+        (conditions that differ only in their coding share it): it is not encoded again.
+
+    Returns
+    -------
+    pattern, schedule
+        The Pattern, and its checked Schedule; ``None`` for the Schedule when the
+        pipeline finds no shape in the image (an empty Pattern, which is not coded).
+
+    Raises
+    ------
+    UnsafeStimulus
+        The Schedule breaks the device's safety limits.
+    pydantic.ValidationError
+        Parameters that do not fit the pipeline's or the protocol's model.
+    """
+    if pattern is None:
+        fn = PIPELINES[pipeline][0]
+        pattern = fn(image, profile.rows, profile.cols,
+                     **checked_encoding_params(pipeline, encoding_params))
+    if not pattern.points:
+        return pattern, None
+    fn = CODINGS[protocol][0]
+    schedule = fn(pattern, profile, **checked_coding_params(protocol, coding_params))
+    check_schedule(schedule, profile)
+    return pattern, schedule
+
+
 def encoding_params(lx: LoadedExperiment, params: dict[str, Any]) -> dict[str, Any]:
     """``params`` checked against the experiment's pipeline, with its defaults filled in."""
-    return PIPELINES[lx.experiment.encoding.pipeline][1].model_validate(params).model_dump()
+    return checked_encoding_params(lx.experiment.encoding.pipeline, params)
 
 
 def encode(lx: LoadedExperiment, image: np.ndarray, profile: DeviceProfile,
@@ -108,8 +152,8 @@ def encode(lx: LoadedExperiment, image: np.ndarray, profile: DeviceProfile,
 def code(lx: LoadedExperiment, pattern: Pattern, profile: DeviceProfile,
          params: dict[str, Any]) -> Schedule:
     """``pattern`` through the experiment's coding protocol with ``params`` (no safety check)."""
-    fn, model = CODINGS[lx.experiment.coding.protocol]
-    return fn(pattern, profile, **model.model_validate(params).model_dump())
+    fn, _ = CODINGS[lx.experiment.coding.protocol]
+    return fn(pattern, profile, **checked_coding_params(lx.experiment.coding.protocol, params))
 
 
 def compile_conditions(lx: LoadedExperiment, profile: DeviceProfile | None = None
@@ -127,49 +171,60 @@ def compile_conditions(lx: LoadedExperiment, profile: DeviceProfile | None = Non
         if c.stimulus not in images:
             images[c.stimulus] = stimulus_image(lx, c.stimulus, profile)
         key = (c.stimulus, tuple(sorted(encoding_params(lx, c.encoding_params).items())))
-        if key not in patterns:
-            patterns[key] = encode(lx, images[c.stimulus], profile, c.encoding_params)
-        c.pattern = patterns[key]
-        if not c.pattern.points:
-            raise lx.error(f"stimulus {c.stimulus!r} gives an empty pattern on {profile.name} "
-                           "(no shape found in the image)", ("stimuli", c.stimulus))
-        if exp.adaptive is not None:
+        if exp.adaptive is not None:            # coded at each level, not at these params
+            if key not in patterns:
+                patterns[key] = encode(lx, images[c.stimulus], profile, c.encoding_params)
+            c.pattern = patterns[key]
+            if not c.pattern.points:
+                raise _empty_pattern(lx, c, profile)
             _compile_levels(lx, c, profile)
             continue
-        c.schedule = code(lx, c.pattern, profile, c.coding_params)
         try:
-            check_schedule(c.schedule, profile)
+            c.pattern, c.schedule = compile_stimulus(
+                images[c.stimulus], profile, pipeline=exp.encoding.pipeline,
+                encoding_params=c.encoding_params, protocol=exp.coding.protocol,
+                coding_params=c.coding_params, pattern=patterns.get(key))
         except UnsafeStimulus as e:
             where = _condition_keypath(lx, c)
             raise lx.error(f"condition {c.label}: unsafe stimulus: {e}", where) from None
+        patterns[key] = c.pattern
+        if c.schedule is None:
+            raise _empty_pattern(lx, c, profile)
     return conditions
+
+
+def _empty_pattern(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) -> InputError:
+    return lx.error(f"stimulus {c.stimulus!r} gives an empty pattern on {profile.name} "
+                    "(no shape found in the image)", ("stimuli", c.stimulus))
 
 
 def _compile_levels(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) -> None:
     """Code the condition at every level the adaptive procedure may play, each checked
     against the device's safety limits before the session: a procedure can only
     propose what was checked. ``c.schedule`` is the schedule at the first level."""
-    from .adaptive.spec import value_list
-    from .adaptive.track import _number
-
-    spec = lx.experiment.adaptive
+    exp = lx.experiment
+    spec = exp.adaptive
     c.schedules = {}
     on_stimulus = spec.sets == "stimulus"
     if on_stimulus:
         c.patterns = {}
     for v in value_list(spec.values):
-        pattern = c.pattern
+        value = parameter_value(v)
         try:
             if on_stimulus:
-                image = stimulus_image(lx, c.stimulus, profile, {spec.variable: _number(v)})
-                pattern = encode(lx, image, profile, c.encoding_params)
-                if not pattern.points:
+                image = stimulus_image(lx, c.stimulus, profile, {spec.variable: value})
+                pattern, s = compile_stimulus(
+                    image, profile, pipeline=exp.encoding.pipeline,
+                    encoding_params=c.encoding_params, protocol=exp.coding.protocol,
+                    coding_params=c.coding_params)
+                if s is None:
                     raise InputError("the stimulus gives an empty pattern")
                 c.patterns[v] = pattern
-                s = code(lx, pattern, profile, c.coding_params)
             else:
-                s = code(lx, pattern, profile, {**c.coding_params, spec.variable: _number(v)})
-            check_schedule(s, profile)
+                _, s = compile_stimulus(
+                    None, profile, pipeline=exp.encoding.pipeline,
+                    encoding_params=c.encoding_params, protocol=exp.coding.protocol,
+                    coding_params={**c.coding_params, spec.variable: value}, pattern=c.pattern)
         except (UnsafeStimulus, InputError, ValueError) as e:
             raise lx.error(f"condition {c.label} at {spec.variable} = {v:g}: unsafe or "
                            f"impossible on {profile.name}: {getattr(e, 'message', e)}",
@@ -183,8 +238,6 @@ def _compile_levels(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) 
 def _check_camera_condition(lx: LoadedExperiment, c: Condition, profile: DeviceProfile) -> None:
     """A camera condition's coding on this device, tried on a one-point pattern (its image
     is taken when the trial runs)."""
-    import warnings
-
     encoding_params(lx, c.encoding_params)
     probe = Pattern(rows=profile.rows, cols=profile.cols,
                     points=[{"row": 0, "col": 0, "line": 1, "order": 0}])

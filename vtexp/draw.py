@@ -114,7 +114,7 @@ def write_png(img: np.ndarray, path: str | Path) -> None:
 
 def write_gif(frames: list[np.ndarray], path: str | Path, *, frame_ms: float = 50.0) -> None:
     """Animated GIF (Pillow), looping, one frame every ``frame_ms``."""
-    from PIL import Image
+    from PIL import Image       # for GIFs only: 'vtexp encode' without --gif needs no Pillow
 
     cv = cv2()
     images = [Image.fromarray(cv.cvtColor(f, cv.COLOR_BGR2RGB)) for f in frames]

@@ -27,9 +27,15 @@ from typing_extensions import Self
 from .adaptive.spec import AdaptiveSpec
 from .analysis.spec import AnalysisSpec, check_factor_references
 from .errors import InputError
-from .model import Model
+from .model import DeviceProfile, Model
 from .observer.spec import ObserverSpec
+from .resources import codings_dir
 from .yamlio import KeyPath, LoadedYaml, format_validation_error, load_yaml, load_yaml_text
+
+# The registries of generators, pipelines and codings (OpenCV, SciPy), the adaptive
+# checks (numpy) and the live path are imported by the functions that check against
+# them, when an experiment is loaded: importing the schema stays light (vtexp.analysis,
+# vtexp.adaptive and vtexp.observer load lazily for the same reason).
 
 NAME = r"^[a-z][a-z0-9_]*$"
 LABEL = r"^[A-Za-z0-9][A-Za-z0-9_.\-/ ]*$"
@@ -199,8 +205,6 @@ class CodingSpec(Model):
 
 def available_codings() -> list[str]:
     """Names of the coding files in protocols/codings/."""
-    from .resources import codings_dir
-
     d = codings_dir()
     return sorted(p.stem for p in d.glob("*.yaml")) if d.is_dir() else []
 
@@ -212,8 +216,6 @@ def coding_path(ref: str, base: Path | None = None) -> Path:
     ``.yaml``/``.yml`` suffix is a path, relative to ``base`` (the experiment
     file's folder) unless absolute.
     """
-    from .resources import codings_dir
-
     if "/" in ref or "\\" in ref or ref.endswith((".yaml", ".yml")):
         p = Path(ref)
         if not p.is_absolute() and base is not None:
@@ -603,7 +605,6 @@ def _loaded(loaded: LoadedYaml) -> LoadedExperiment:
 def _check(lx: LoadedExperiment) -> None:
     from .coding import CODINGS
     from .encoding import PIPELINES
-    from .model import DeviceProfile
     from .stimuli import GENERATORS
 
     exp = lx.experiment
@@ -695,7 +696,7 @@ def _check(lx: LoadedExperiment) -> None:
         raise lx.error("a factor sets the adaptive procedure's settings, but there is no "
                        "'adaptive:' section", ("factors", adaptive_factors[0], "sets"))
     if exp.adaptive is not None:
-        from .adaptive.track import check_adaptive
+        from .adaptive.check import check_adaptive
 
         if any(s.is_camera for s in exp.stimuli.values()):
             raise lx.error("an adaptive procedure needs stimuli that can be coded before the "

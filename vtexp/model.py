@@ -1,12 +1,16 @@
 """The data objects that flow between the layers.
 
 Each is a pydantic model: plain data, validated on construction, written to
-JSON with ``.to_json()`` and read back with ``Cls.from_json(text)``.
+JSON with ``.to_json()`` and read back with ``Cls.from_json(text)``; a
+:class:`Condition` is a plain dataclass that compiling fills in.
 
 - :class:`DeviceProfile`: what an array is and what it may safely do.
 - :class:`Pattern`: where on the array, in which order (encoding output).
 - :class:`Schedule`: timed pulses on physical actuators (coding output).
 - :class:`PlayReport`: what a device actually played, with its onsets.
+- :class:`Condition`: one combination of an experiment's factor levels, with its
+  stimulus, its parameters and, compiled (:mod:`vtexp.compile`), its Pattern and
+  Schedule.
 - :class:`TrialRecord`: one logged trial.
 
 Positions: ``row`` counts from the top, ``col`` from the left, both from 0,
@@ -16,6 +20,7 @@ onto the body). Times are in milliseconds and carry ``_ms`` in their names.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -24,6 +29,7 @@ from typing_extensions import Self
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import InputError
+from .resources import devices_dir
 
 
 class Model(BaseModel):
@@ -157,7 +163,7 @@ class DeviceProfile(Model):
     @classmethod
     def load(cls, name_or_path: str | Path) -> DeviceProfile:
         """Load a profile by name (``protocols/devices/NAME.yaml``) or from a path."""
-        from .resources import devices_dir
+        # Here: the data model itself needs pydantic alone, not YAML.
         from .yamlio import format_validation_error, load_yaml
 
         p = Path(name_or_path)
@@ -175,8 +181,6 @@ class DeviceProfile(Model):
 
 
 def available_profiles() -> list[str]:
-    from .resources import devices_dir
-
     d = devices_dir()
     return sorted(p.stem for p in d.glob("*.yaml")) if d.is_dir() else []
 
@@ -315,6 +319,34 @@ class DeviceInfo(Model):
     protocol: str = ""
     port: str = ""
     details: dict[str, Any] = Field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- condition
+
+@dataclass
+class Condition:
+    """One combination of factor levels; :func:`vtexp.compile.compile_conditions` fills in
+    its pattern and schedule (or a schedule per level an adaptive procedure may play)."""
+
+    index: int                               # 0-based, in declaration order
+    levels: dict[str, str]                   # factor -> level
+    stimulus: str
+    encoding_params: dict[str, Any]
+    coding_params: dict[str, Any]
+    pattern: Pattern | None = field(default=None, repr=False)
+    schedule: Schedule | None = field(default=None, repr=False)
+    camera: bool = False                     # the stimulus is taken at each trial
+    adaptive_params: dict[str, Any] = field(default_factory=dict)   # sets: adaptive
+    #: with an adaptive procedure: the schedule at each level it may play
+    schedules: dict[float, Schedule] | None = field(default=None, repr=False)
+    #: with an adaptive stimulus parameter: the pattern at each level
+    patterns: dict[float, Pattern] | None = field(default=None, repr=False)
+    #: generator parameters that override the stimulus's (an adaptive level, at a trial)
+    stimulus_params: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        return ", ".join(f"{k}={v}" for k, v in self.levels.items())
 
 
 # --------------------------------------------------------------------------- trial record

@@ -24,6 +24,7 @@ import json
 import math
 import os
 import tempfile
+import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -31,17 +32,18 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from threadpoolctl import threadpool_limits
 
 from .analysis.anova import MissingCellsWarning, rm_anova_batch
 from .analysis.ordinal import friedman
 from .analysis.pipeline import _subset, participant_measures
 from .analysis.spec import AnalysisSpec, default_spec
-from .compile import Condition, compile_conditions
+from .compile import compile_conditions
 from .design import trial_list
 from .devices.sim import SimDevice
 from .errors import InputError
 from .experiment import LoadedExperiment, load_experiment, load_experiment_text
-from .model import PlayReport
+from .model import Condition, PlayReport
 from .observer.model import ObserverModel, question_columns
 from .responders.base import correct_answer
 
@@ -250,7 +252,6 @@ def _one_blas_thread():
     """Keep numpy's BLAS to one thread in this process: the matrices are small, and a
     BLAS thread pool per worker on top of a worker per core oversubscribes the cores
     (measured: 2 workers took 1.8x as long as 1 process without this)."""
-    from threadpoolctl import threadpool_limits
     return threadpool_limits(limits=1, user_api="blas")
 
 
@@ -323,8 +324,6 @@ def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, se
     core; ``workers`` is then how many run at once there (the chunk size follows it).
     ``source``: the experiment as text (:class:`ExperimentSource`), instead of ``path``.
     """
-    import time
-
     if n < 2:
         raise InputError("a study needs at least 2 participants", key="--participants")
     if studies < 1:

@@ -21,6 +21,7 @@ differences between points come from the design, not from drawing other people.
 from __future__ import annotations
 
 import itertools
+from copy import deepcopy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -104,8 +105,6 @@ def set_key(data: Any, dotted: str, value: Any) -> None:
 def sweep_points(experiment: Path | str, spec: SweepSpec, sweep_doc, *, params_file=None
                  ) -> list[SweepPoint]:
     """Every variant of the experiment the sweep asks for, each loaded and checked."""
-    from copy import deepcopy
-
     base = load_yaml(experiment)
     keys = list(spec.vary)
     points = []

@@ -32,7 +32,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from scipy.special import ndtr
+from scipy.special import ndtr, ndtri
 
 FunctionName = Literal["weibull", "logistic", "normal", "gumbel"]
 FUNCTIONS: tuple[str, ...] = ("weibull", "logistic", "normal", "gumbel")
@@ -84,7 +84,6 @@ def threshold_at(p: float, threshold, slope, guess=0.0, lapse=0.0,
     if function == "logistic":
         return a + np.log(f / (1.0 - f)) / b
     if function == "normal":
-        from scipy.special import ndtri
         return a + ndtri(f) / b
     if function == "gumbel":
         return a + 20.0 * np.log10(-np.log1p(-f)) / b

@@ -108,7 +108,7 @@ class QuestPlus:
     def propose(self, rng=None) -> float:
         """The level of least expected entropy; with ``select_among = N``, one of the
         ``N`` least drawn by ``rng`` (an object with ``below(n)``, e.g.
-        :class:`vtexp.design.HashRandom`)."""
+        :class:`vtexp.seeding.HashRandom`)."""
         eh = self.expected_entropy()
         n = min(self.rule.select_among, eh.size)
         if n <= 1 or rng is None:

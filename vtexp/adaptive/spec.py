@@ -17,14 +17,18 @@ tracks (the conditions that differ in the other factors share one, e.g. a stairc
 over shapes presented at random); a factor with ``sets: adaptive`` gives each of its
 levels other procedure settings (interleaved staircases from two starts). What the
 device can play, and that every start and step lands on it, is checked when the
-experiment is loaded (:func:`vtexp.adaptive.track.check_adaptive`).
+experiment is loaded (:func:`vtexp.adaptive.check.check_adaptive`).
+
+Besides the schema, the few helpers on levels that the load-time checks, compiling and
+the session share: :func:`value_list` (the levels), :func:`parameter_value` (a level as
+the value of the parameter it sets) and :func:`procedure_spec` (a track's settings).
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Discriminator, Field, model_validator
+from pydantic import Discriminator, Field, TypeAdapter, model_validator
 from typing_extensions import Self
 
 from ..model import Model
@@ -183,8 +187,22 @@ class AdaptiveSpec(Model):
     procedure: Procedure
 
 
+#: Levels closer than this are the same level (:func:`value_list` rounds to 9 decimals).
+TOL = 1e-9
+
+_PROCEDURE = TypeAdapter(Procedure)
+
+
+def procedure_spec(spec: AdaptiveSpec, overrides: dict[str, Any] | None = None):
+    """The procedure with a condition's ``sets: adaptive`` settings merged in."""
+    if not overrides:
+        return spec.procedure
+    return _PROCEDURE.validate_python({**spec.procedure.model_dump(exclude_unset=True),
+                                       **overrides})
+
+
 def grid(g: GridSpec | list[float]) -> list[float]:
-    import numpy as np
+    import numpy as np      # here: the schema (vtexp.experiment) imports without numpy
 
     if isinstance(g, list):
         return [float(v) for v in g]
@@ -201,3 +219,10 @@ def value_list(v: ValueRange | list[float]) -> list[float]:
     out = [v.min + i * v.step for i in range(n + 1)]
     out = [round(x, 9) for x in out if x <= v.max + 1e-9]
     return out
+
+
+def parameter_value(level: float) -> int | float:
+    """A level as the value of the parameter it sets: a whole number as an ``int`` (within
+    :data:`TOL`), so that an integer parameter of a coding or generator takes it; any
+    other level as it is."""
+    return int(round(level)) if abs(level - round(level)) <= TOL else level

@@ -46,6 +46,7 @@ import pandas as pd
 from scipy import stats
 
 from ..errors import InputError
+from .effect_sizes import ETA2P_CI_LEVEL, eta2p_ci
 
 __all__ = ["MissingCellsWarning", "WithinDesign", "within_design", "rm_anova",
            "rm_anova_batch", "simple_effects", "anova_arrays", "mixed_anova_arrays"]
@@ -661,7 +662,6 @@ def _rounding_to_zero(t: pd.DataFrame, scale: float) -> None:
 def _with_pes_interval(t: pd.DataFrame) -> None:
     """Insert ``pes_ci90_low``/``pes_ci90_high`` after ``pes``: the 90 % interval of
     partial η² on the table's (sphericity-assumed) df (:func:`.effect_sizes.eta2p_ci`)."""
-    from .effect_sizes import ETA2P_CI_LEVEL, eta2p_ci
     lims = [eta2p_ci(F, d1, d2, ETA2P_CI_LEVEL) for F, d1, d2 in
             zip(t["F"].to_numpy(float), t["df1"].to_numpy(float), t["df2"].to_numpy(float))]
     at = t.columns.get_loc("pes") + 1

@@ -9,9 +9,12 @@ cells large enough to read).
 from __future__ import annotations
 
 import io
+import textwrap
 
 import numpy as np
 import pandas as pd
+
+from .psychometric import curve
 
 __all__ = ["rate_by_condition", "per_participant_lines", "confusion_heatmaps",
            "psychometric_curves"]
@@ -124,8 +127,6 @@ def confusion_heatmaps(confusion: pd.DataFrame, by: list[str]) -> bytes:
     26 × 26 letter matrix is readable), panels per row shrink accordingly, and
     titles are wrapped to the panel's width so that neighbours do not overlap.
     """
-    import textwrap
-
     plt = _plt()
     groups = [((), confusion)] if not by else list(confusion.groupby(by, observed=True))
     n = len(groups)
@@ -174,8 +175,6 @@ def psychometric_curves(fits: pd.DataFrame, points: pd.DataFrame, variable: str,
     """One panel per participant (and ``by`` level): the proportion of yes at each level
     played (marker area ∝ trials), the fitted function, and the threshold with its
     interval (a bar at the function's height there)."""
-    from .psychometric import curve
-
     plt = _plt()
     keys = ["participant", *(by or [])]
     n = len(fits)

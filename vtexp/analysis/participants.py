@@ -14,6 +14,8 @@ between-participant factors here.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pandas as pd
 
 from ..errors import InputError
@@ -28,7 +30,6 @@ def _bare(pid) -> str:
 
 def read_participants(path) -> pd.DataFrame:
     """A BIDS ``participants.tsv`` as a table keyed by the bare id (``01`` for ``sub-01``)."""
-    from pathlib import Path
     p = Path(path)
     if not p.is_file():
         raise InputError("no such participants table", path=str(p))

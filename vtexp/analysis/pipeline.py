@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
+from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
 import numpy as np
@@ -17,9 +18,14 @@ import pandas as pd
 from ..errors import InputError
 from .anova import MissingCellsWarning, rm_anova, simple_effects
 from .confusion import agreement, confusion_matrix, information_transfer
+from .effect_sizes import ETA2P_CI_LEVEL, eta2p_ci
+from .glmm import MixedModelWarning, mixed_logit
 from .load import SessionData
 from .ordinal import friedman, wilcoxon_pairwise
+from .participants import join_participants, read_participants
 from .posthoc import pairwise_tests
+from .psychometric import (estimate_sentence, fit_sentence, procedure_estimates,
+                           psychometric_fits)
 from .rates import recognition_rates
 from .spec import AnalysisSpec, PsychometricSpec, default_spec
 
@@ -148,7 +154,6 @@ def format_p(p: float) -> str:
 
 def _fixed(x: float, digits: int = 2) -> str:
     """Round half up on the shortest decimal form (28.775 -> 28.78), as people round."""
-    from decimal import ROUND_HALF_UP, Decimal
     if x != x or x in (float("inf"), float("-inf")):
         return "n/a"
     return str(Decimal(repr(float(x))).quantize(Decimal(1).scaleb(-digits), ROUND_HALF_UP))
@@ -173,7 +178,6 @@ def _bound(x: float) -> str:
 
 def eta2p_interval(F: float, df1: float, df2: float) -> str:
     """'90% CI [.39, .81]' for partial η² from F on (df1, df2), or the reason there is none."""
-    from .effect_sizes import ETA2P_CI_LEVEL, eta2p_ci
     lo, hi = eta2p_ci(F, df1, df2, ETA2P_CI_LEVEL)
     level = f"{ETA2P_CI_LEVEL * 100:.0f}% CI"
     if lo != lo:
@@ -296,7 +300,6 @@ def participants_table(sessions: list[SessionData]):
     The one vtexp writes at the root of the sessions' dataset; for data folders of
     the layout before BIDS, one a lab put in the folder of the sessions or above it.
     """
-    from .participants import read_participants
     seen = set()
     for s in sessions:
         roots = [s.root] if getattr(s, "root", None) is not None else []
@@ -312,7 +315,6 @@ def participants_table(sessions: list[SessionData]):
 
 def _with_groups(trials: pd.DataFrame, sessions: list[SessionData], names: list[str]):
     """``trials`` with the between factors ``names`` taken from the participants table."""
-    from .participants import join_participants
     lacking = [n for n in names if n not in trials.columns]
     if not lacking:
         return trials
@@ -488,7 +490,6 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
         T["agreement_all"] = agreement(sub, labels=labels)
     adaptive = loaded.get("adaptive")
     if adaptive:
-        from .psychometric import fit_sentence, psychometric_fits
         ps = spec.psychometric or PsychometricSpec()
         done_est: set = set()
         fits, points = psychometric_fits(sub, adaptive, function=ps.function, guess=ps.guess,
@@ -500,7 +501,6 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
                                           "per participant (maximum likelihood)")
         res.titles["psychometric_points"] = (f"Answers counted as yes at each level of "
                                              f"{adaptive['variable']} played")
-        from .psychometric import estimate_sentence, procedure_estimates
         est = procedure_estimates(sub, adaptive, loaded.get("factors") or {})
         T["procedure_estimates"] = est
         res.titles["procedure_estimates"] = (
@@ -518,7 +518,6 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
                     e, adaptive["variable"], track=many_tracks,
                     session=mine_est["session"].nunique() > 1))
     if spec.mixed_model is not None and scored:
-        from .glmm import MixedModelWarning, mixed_logit
         mf = spec.mixed_model.factors or factors
         try:
             with warnings.catch_warnings(record=True) as w:

@@ -25,6 +25,7 @@ from ..errors import InputError
 from ..log import NA
 from .load import (SessionData, beh_path, combine_sessions, find_sessions, read_record,
                    read_session, typed_trials)
+from .participants import join_participants, read_participants
 
 __all__ = ["load_pooled", "for_analysis", "expand_datasets"]
 
@@ -123,8 +124,6 @@ def for_analysis(trials: pd.DataFrame, sessions: list[SessionData],
     """The pooled table ready for the statistics: each dataset's participants.tsv
     joined (its columns, where the trial table lacks them), and participants of
     different datasets kept apart (``dataset/id``) when an id occurs in several."""
-    from .participants import join_participants, read_participants
-
     parts = []
     for label in trials["dataset"].unique():
         sub = trials[trials["dataset"] == label]

@@ -16,6 +16,9 @@ import numpy as np
 import pandas as pd
 
 from ..adaptive.fit import fit_psychometric
+from ..adaptive.psychometric import psi
+from ..adaptive.spec import AdaptiveSpec, procedure_spec, value_list
+from ..adaptive.track import replay_estimate
 from ..errors import InputError
 
 
@@ -88,9 +91,6 @@ def procedure_estimates(trials: pd.DataFrame, adaptive: dict, factors: dict
     them (``experiment_loaded``). Every answered trial of the procedure's question
     (``status`` ok, practice excluded) counts, as it did in the session.
     """
-    from ..adaptive.spec import AdaptiveSpec, value_list
-    from ..adaptive.track import procedure_spec, replay_estimate
-
     spec = AdaptiveSpec.model_validate(adaptive)
     response = adaptive.get("response") or {}
     d = trials
@@ -163,7 +163,5 @@ def fit_sentence(row: pd.Series, variable: str, by: list[str]) -> str:
 
 
 def curve(row: pd.Series, levels: np.ndarray) -> np.ndarray:
-    from ..adaptive.psychometric import psi
-
     return psi(levels, row["threshold"], row["slope"], row["guess"], row["lapse"],
                row["function"])

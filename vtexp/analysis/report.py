@@ -8,6 +8,8 @@ beside it, and one CSV per table. It formats an
 
 from __future__ import annotations
 
+import base64
+import html
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -143,7 +145,6 @@ def _display(name: str, df: pd.DataFrame) -> tuple[pd.DataFrame, bool]:
 
 
 def html_table(name: str, df: pd.DataFrame) -> str:
-    import html
     df, percent = _display(name, df)
     head = "".join(f"<th>{html.escape(_LABELS.get(str(c), str(c)))}</th>" for c in df.columns)
     body = []
@@ -206,10 +207,7 @@ def write_experiment_report(a, out: Path) -> dict[str, Path]:
     ``a`` is an :class:`~vtexp.analysis.pipeline.ExperimentAnalysis`; this
     function formats it and computes nothing.
     """
-    import base64
-    import html
-
-    from . import figures
+    from . import figures       # with SciPy: md_table ('vtexp stats') does without
 
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
@@ -356,7 +354,7 @@ def write_reports(trials: pd.DataFrame, sessions: list[SessionData], out: Path, 
     one recorded in its sessions. Returns, per experiment, its files and (key
     ``analysis``) the :class:`~vtexp.analysis.pipeline.ExperimentAnalysis`.
     """
-    from .pipeline import analyse_experiment
+    from .pipeline import analyse_experiment        # likewise
 
     rates = write_rate_report(trials, sessions, out)
     full: dict[str, dict] = {}

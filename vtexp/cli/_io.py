@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import shlex
+import shutil
 import sys
+from pathlib import Path
 
 
 def out(msg: str = "") -> None:
@@ -31,9 +34,6 @@ def program() -> str:
     ``vtexp`` if that is the command found on PATH, else the script's full path;
     ``python -m vtexp`` with this interpreter's full path when run that way.
     """
-    import shutil
-    from pathlib import Path
-
     argv0 = Path(sys.argv[0]) if sys.argv and sys.argv[0] else None
     if argv0 is None or argv0.name in ("__main__.py", "-c") or argv0.suffix == ".py":
         return f"{quote(sys.executable)} -m vtexp"

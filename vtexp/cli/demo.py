@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 import sys
 import time
@@ -20,8 +21,6 @@ DEMO_STUDIES = [("six_mode_ball", 3), ("duration_interval_grid", 1), ("whirlpool
 
 def _short_version(src: Path, dest: Path, repetitions: int) -> Path:
     """A copy of an experiment file with fewer repetitions, saying so at its top."""
-    import re
-
     text = src.read_text(encoding="utf-8")
     short, n = re.subn(r"(?m)^(  repetitions:\s*)\d+", rf"\g<1>{repetitions}", text, count=1)
     if n != 1:

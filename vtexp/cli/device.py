@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 
 from ._io import out
 
@@ -255,8 +256,6 @@ def cmd_emulate(args: argparse.Namespace) -> int:
 
 def _emulate_c_firmware(args: argparse.Namespace, profile) -> int:
     """``vtexp device emulate --firmware avr|host``: the reference firmware in C."""
-    from pathlib import Path
-
     from ..devices.base import stream_watchdog_limit_ms
     from ..devices.cfirmware import AvrSimulator, HostFirmware
     from ..errors import InputError

@@ -58,11 +58,11 @@ def cmd_encode(args) -> int:
     from pydantic import ValidationError
 
     from ..coding import CODINGS
+    from ..compile import checked_coding_params, checked_encoding_params, compile_stimulus
     from ..draw import draw_pattern, schedule_frames, write_gif, write_png
     from ..encoding import PIPELINES
     from ..errors import UnsafeStimulus
     from ..model import DeviceProfile
-    from ..safety import check_schedule
 
     if args.pipeline not in PIPELINES:
         raise InputError(f"unknown pipeline {args.pipeline!r}; available: "
@@ -73,30 +73,30 @@ def cmd_encode(args) -> int:
                          key="--coding")
     profile = DeviceProfile.load(args.device)
     gray = load_image(args.image, profile.rows, profile.cols)
-    enc_fn, enc_model = PIPELINES[args.pipeline]
-    cod_fn, cod_model = CODINGS[coding]
+    # Checked here too (compile_stimulus checks them as it goes), so that a mistake in
+    # either set is named before the slow encoding.
+    enc = _params(args.param, "--param")
     try:
-        enc = enc_model(**_params(args.param, "--param")).model_dump()
+        checked_encoding_params(args.pipeline, enc)
     except ValidationError as e:
         err = e.errors(include_url=False)[0]
         raise InputError(f"{err['msg']}", key=f"--param {'.'.join(map(str, err['loc']))}") from None
+    cod = _params(args.coding_param, "--coding-param")
     try:
-        cod = cod_model(**_params(args.coding_param, "--coding-param")).model_dump()
+        checked_coding_params(coding, cod)
     except ValidationError as e:
         err = e.errors(include_url=False)[0]
         raise InputError(f"{err['msg']}",
                          key=f"--coding-param {'.'.join(map(str, err['loc']))}") from None
-    pattern = enc_fn(gray, profile.rows, profile.cols, **enc)
-    if not pattern.points:
+    try:
+        pattern, schedule = compile_stimulus(gray, profile, pipeline=args.pipeline,
+                                             encoding_params=enc, protocol=coding,
+                                             coding_params=cod)
+    except UnsafeStimulus as e:
+        raise InputError(f"unsafe stimulus: {e}", key="--coding-param") from None
+    if schedule is None:
         print(f"vtexp: warning: no shape found in {args.image}; the pattern is empty",
               file=sys.stderr)
-        schedule = None
-    else:
-        schedule = cod_fn(pattern, profile, **cod)
-        try:
-            check_schedule(schedule, profile)
-        except UnsafeStimulus as e:
-            raise InputError(f"unsafe stimulus: {e}", key="--coding-param") from None
     lines = pattern.lines()
     print(f"{args.image}: {gray.shape[1]}x{gray.shape[0]} -> {args.pipeline} on {profile.name} "
           f"({profile.rows}x{profile.cols}): {len(pattern.points)} points on "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -95,8 +96,6 @@ def adaptive_plan(lx, conditions, trials) -> AdaptivePlan:
 
 def cmd_schema(args) -> int:
     """Write the experiment files' JSON Schema, for editors that complete and check YAML."""
-    import json
-
     from ..coding import CODINGS
     from ..encoding import PIPELINES
     from ..experiment import Experiment

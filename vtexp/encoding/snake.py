@@ -91,6 +91,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from .._cv2 import cv2
+from ..errors import InputError
 from ..model import Model, Pattern
 from .mapping import ImageToArray
 from .phantom_grid import fit_to_array, grid_path
@@ -753,8 +754,6 @@ def outline_mask(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 
 def _as_gray(gray: np.ndarray, pipeline: str = "snake-corners") -> np.ndarray:
-    from ..errors import InputError
-
     img = np.asarray(gray)
     if img.ndim != 2:
         raise InputError(f"{pipeline} needs a 2-D grayscale image, got an array of shape "

@@ -122,7 +122,7 @@ def open_markers(spec: str, *, experiment: str, participant: str, session: int,
     session's (:class:`~vtexp.clock.Clock`, the real one unless given)."""
     kind, target, opts = parse_spec(spec)
     if kind == "lsl":
-        from .lsl import LslMarkers
+        from .lsl import LslMarkers                  # it imports MarkerSink from here
 
         unknown = set(opts) - {"name"}
         if unknown or target:
@@ -131,7 +131,7 @@ def open_markers(spec: str, *, experiment: str, participant: str, session: int,
                                session=session, name=opts.get("name"), warn=warn,
                                clock=clock)
     if kind in ("serial", "parallel"):
-        from .trigger import ParallelTrigger, SerialTrigger
+        from .trigger import ParallelTrigger, SerialTrigger     # likewise
 
         if not target:
             example = "serial:/dev/ttyUSB0" if kind == "serial" else "parallel:/dev/parport0"

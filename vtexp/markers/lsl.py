@@ -30,6 +30,7 @@ import json
 import statistics
 from typing import Any
 
+from .. import __version__
 from ..clock import REAL
 from . import MarkerError, MarkerSink
 
@@ -117,7 +118,6 @@ class LslMarkers(MarkerSink):
         except Exception as e:      # the bundled liblsl did not load (an old glibc?)
             raise MarkerError(f"the LSL marker stream cannot start: pylsl could not load "
                               f"liblsl ({e})") from None
-        from .. import __version__
 
         source_id = f"vtexp:{experiment}:sub-{participant}:ses-{session}"
         try:

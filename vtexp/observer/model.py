@@ -35,10 +35,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
-from ..compile import Condition, code, encode, stimulus_image
+from ..compile import code, encode, stimulus_image
+from ..devices.sim import SimDevice
 from ..errors import InputError
 from ..experiment import LoadedExperiment
-from ..model import DeviceProfile, PlayReport
+from ..model import Condition, DeviceProfile, PlayReport
+from ..stimuli import render
 from .params import (
     ObserverParams,
     Participant,
@@ -163,9 +165,6 @@ class ObserverModel:
     # ------------------------------------------------------------------ templates
     def template_report(self, name: str, condition: Condition) -> PlayReport:
         """The answer ``name`` as the device would play it in ``condition``."""
-        from ..devices.sim import SimDevice
-        from ..stimuli import render
-
         ts = self._template_spec(name, "")
         # An adaptive stimulus level applies to the experiment's stimuli as templates too.
         level = repr(sorted(condition.stimulus_params.items()))

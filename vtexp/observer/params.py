@@ -19,6 +19,7 @@ from scipy.special import ndtr, ndtri
 from ..errors import InputError
 from ..model import Model
 from ..resources import protocols_dir
+from ..yamlio import load_yaml
 
 Positive = Annotated[float, Field(gt=0)]
 
@@ -69,8 +70,6 @@ class ObserverParams(Model):
 def load_params(path: Path | str | None = None, overrides: dict[str, Any] | None = None
                 ) -> ObserverParams:
     """Read an observer file (default: the shipped one) and apply ``overrides``."""
-    from ..yamlio import load_yaml
-
     p = Path(path) if path is not None else protocols_dir() / "observers" / "default.yaml"
     if not p.is_file():
         raise InputError("no such observer file", path=str(p))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ..errors import InputError
 from .base import Responder, Response, correct_answer
+from .console import make_console
 from .scripted import ScriptedResponder, make_scripted
 
 
@@ -19,7 +20,6 @@ def make_responder(spec: str, participant: str, session: int, lx=None) -> Respon
     if kind == "scripted":
         return make_scripted(arg or "correct", participant, session, lx)
     if kind == "console":
-        from .console import make_console
         return make_console(arg)
     if kind == "window":
         from .window import make_window     # PsychoPy is imported only here
@@ -33,6 +33,8 @@ def make_responder(spec: str, participant: str, session: int, lx=None) -> Respon
 
 
 def _make_model(arg: str, participant: str, session: int, lx) -> Responder:
+    # Here, not above: the model participant loads the compiler (OpenCV, SciPy), and its
+    # responder imports .base of this package.
     from ..observer import ModelObserver, ObserverModel
 
     if lx is None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import lru_cache
+from pathlib import Path
 
 #: The smallest text at scale 1, in screen heights (the font size, em): 3 % (24 px on an
 #: 800-pixel-high screen; on a screen 30 cm high seen from 57 cm, 0.9 degrees of visual
@@ -33,10 +34,8 @@ class LayoutError(Exception):
 
 @lru_cache(maxsize=1)
 def _font():
-    from pathlib import Path
-
-    import matplotlib
-    from PIL import ImageFont
+    import matplotlib           # only to find its copy of DejaVu Sans, when text is
+    from PIL import ImageFont   # first measured (a second to import, on a slow machine)
     path = Path(matplotlib.get_data_path()) / "fonts" / "ttf" / "DejaVuSans.ttf"
     return ImageFont.truetype(str(path), 200)
 

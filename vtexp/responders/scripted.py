@@ -21,9 +21,11 @@ from __future__ import annotations
 from pathlib import Path
 from collections.abc import Callable, Sequence
 
-from ..design import HashRandom, Trial, derive_seed
+from ..adaptive.psychometric import FUNCTIONS, psi
+from ..design import Trial
 from ..errors import InputError
 from ..experiment import ChoiceQuestion
+from ..seeding import HashRandom, derive_seed
 from .base import Replay, Response, correct_answer
 
 Rule = Callable[[ChoiceQuestion, Trial], str]
@@ -136,8 +138,6 @@ def make_scripted(spec: str, participant: str, session: int, lx=None) -> Scripte
 
 def _psychometric(arg: str, participant: str, session: int, lx) -> ScriptedResponder:
     """Answers drawn from a psychometric function of the level the trial played."""
-    from ..adaptive.psychometric import FUNCTIONS, psi
-
     ada = getattr(getattr(lx, "experiment", None), "adaptive", None)
     if ada is None:
         raise InputError("scripted:psychometric answers from the level an adaptive procedure "

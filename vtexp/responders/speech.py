@@ -27,6 +27,8 @@ import wave
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from ..clock import REAL, Clock
 from ..errors import InputError, SessionError
 
@@ -209,8 +211,6 @@ class Voice:
 def masking_noise(folder: Path, seconds: float = 4.0, rate: int = 22050) -> Path:
     """Pink-ish noise at a moderate level, looped during each stimulus (seed 001's
     headphones "to eliminate any acoustical cues")."""
-    import numpy as np
-
     path = Path(folder) / f"masking-noise-{rate}.wav"
     if path.is_file():
         return path

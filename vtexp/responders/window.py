@@ -46,6 +46,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Callable, Sequence
+from types import SimpleNamespace
 
 from ..clock import REAL, Clock
 from ..design import Trial
@@ -522,7 +523,6 @@ class WindowResponder:
     def ask_choice(self, prompt: str, options: Sequence[str], replay: Replay | None = None,
                    replays_allowed: int = 0, trial: Trial | None = None) -> Response:
         """Forced choice: one button per option, each on a key (letters on their letter)."""
-        from types import SimpleNamespace
         q = SimpleNamespace(kind="choice", name="response", prompt=prompt,
                             options=list(options), replays=replays_allowed)
         return self._ask(q, replay, trial)
@@ -532,7 +532,6 @@ class WindowResponder:
                    trial: Trial | None = None) -> Response:
         """A rating from ``scale`` (e.g. 0..4 or -2..2): the number's key answers, with the
         minus key first below zero; ``labels`` in the buttons of the points they name."""
-        from types import SimpleNamespace
         scale = list(scale)
         q = SimpleNamespace(kind="rating", name="rating", prompt=prompt, scale=scale,
                             low=min(scale), high=max(scale), labels=dict(labels),
@@ -543,7 +542,6 @@ class WindowResponder:
                    replay: Replay | None = None, replays_allowed: int = 0,
                    trial: Trial | None = None) -> Response:
         """A count: digits typed then Enter; up/down, + and - change it; Backspace corrects."""
-        from types import SimpleNamespace
         q = SimpleNamespace(kind="number", name="count", prompt=prompt, minimum=minimum,
                             maximum=maximum, options=[str(v) for v in range(minimum,
                                                                              maximum + 1)],
@@ -960,7 +958,6 @@ def _choice(r: WindowResponder, q, replay, trial=None):
 
 
 def _rating(r: WindowResponder, q, replay, trial=None):     # vtexp.experiment.RatingQuestion
-    from types import SimpleNamespace
     scale = list(q.scale)
     q = SimpleNamespace(kind="rating", name=getattr(q, "name", "rating"), prompt=q.prompt,
                         scale=scale, low=min(scale), high=max(scale),
@@ -970,7 +967,6 @@ def _rating(r: WindowResponder, q, replay, trial=None):     # vtexp.experiment.R
 
 
 def _number(r: WindowResponder, q, replay, trial=None):     # vtexp.experiment.NumberQuestion
-    from types import SimpleNamespace
     lo, hi = getattr(q, "minimum", 0), getattr(q, "maximum", 99)
     q = SimpleNamespace(kind="number", name=getattr(q, "name", "count"), prompt=q.prompt,
                         minimum=lo, maximum=hi, replays=getattr(q, "replays", 0),

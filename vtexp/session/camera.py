@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..errors import SessionError
 from ..experiment import LoadedExperiment
-from ._deps import Trial
+from ..design import Trial
 from .files import has_camera
 
 

@@ -25,7 +25,7 @@ from ..errors import DeviceError, SessionAborted, SessionError
 from ..experiment import LoadedExperiment
 from ..model import PlayReport, TrialRecord
 from ..responders.base import Responder, call_hook
-from ._deps import Trial
+from ..design import Trial
 from .bids_writer import BidsWriter
 from .options import SessionOptions, SessionSetup, check_run
 from .paths import SessionPaths

@@ -9,12 +9,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import bids
+from ..adaptive.track import AdaptiveRun
 from ..clock import REAL, Clock
+from ..compile import compile_conditions
+from ..design import Trial, trial_list
 from ..errors import DeviceError, InputError, SessionError
 from ..experiment import LoadedExperiment
-from ..model import DeviceProfile
+from ..model import Condition, DeviceProfile
 from ..responders.base import call_hook
-from ._deps import AdaptiveRun, Condition, Trial, compile_conditions, trial_list
 from .camera import CameraTrials
 from .paths import (SessionPaths, check_participant, check_participant_kind, check_session,
                     participant_kind)

@@ -23,7 +23,9 @@ from collections.abc import Generator
 from dataclasses import dataclass
 from typing import Union
 
-from ._deps import AdaptiveRun, Trial, level_number
+from ..adaptive.spec import parameter_value
+from ..adaptive.track import AdaptiveRun
+from ..design import Trial
 from .records import TrialDone
 
 #: Said to the participant at the end of every run.
@@ -112,11 +114,11 @@ def adaptive_trial(adaptive: AdaptiveRun, trial: Trial) -> Trial:
     if adaptive.spec.sets == "stimulus":
         cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
                                    pattern=c.patterns[p.presented],
-                                   stimulus_params={variable: level_number(p.presented)})
+                                   stimulus_params={variable: parameter_value(p.presented)})
     else:
         cond = dataclasses.replace(c, schedule=c.schedules[p.presented],
                                    coding_params={**c.coding_params,
-                                                  variable: level_number(p.presented)})
+                                                  variable: parameter_value(p.presented)})
     return dataclasses.replace(trial, condition=cond, proposed=p.proposed,
                                presented=p.presented)
 

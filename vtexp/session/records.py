@@ -23,7 +23,7 @@ from typing import Union
 from ..errors import DeviceError
 from ..model import PlayReport, TrialRecord
 from ..responders.base import Response, correct_answer
-from ._deps import Trial
+from ..design import Trial
 
 
 @dataclass(frozen=True)
