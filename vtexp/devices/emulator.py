@@ -290,25 +290,14 @@ class PtyEmulator(_Emulator):
 
     # -- lifecycle --------------------------------------------------------------------------
     def _open_pty(self) -> str:
-        try:
-            import tty
-        except ImportError:             # Windows
-            tty = None
-        if tty is None or not hasattr(os, "openpty"):
-            raise DeviceError("the emulated device on a pseudo-terminal (vtexp device emulate, "
-                              "--device emulator) needs one, which this system does not have "
-                              "(Linux and macOS do); rehearse in-process with --device "
-                              "emulator:virtual or --device sim, or run on the real device: "
-                              "serial:PORT (e.g. serial:COM3)")
-        master, slave = os.openpty()
-        # Raw at once: a cooked pty would echo the device's bytes back to it and turn CR
-        # into LF before the host's pyserial gets to set raw mode itself.
-        tty.setraw(slave)
+        master, slave, self.port = open_raw_pty(
+            "the emulated device on a pseudo-terminal (vtexp device emulate, --device "
+            "emulator)", "rehearse in-process with --device emulator:virtual or --device sim, "
+            "or run on the real device: serial:PORT (e.g. serial:COM3)")
         os.set_blocking(master, False)
-        self._master, self._slave = master, slave
         # The emulator keeps the slave open too, so the host may close and reopen the
         # port (a real device stays plugged in when the host program exits).
-        self.port = os.ttyname(slave)
+        self._master, self._slave = master, slave
         return self.port
 
     def start(self) -> str:
@@ -405,6 +394,23 @@ class PtyEmulator(_Emulator):
             except OSError as e:
                 if e.errno not in (errno.EIO, errno.EBADF):
                     raise
+
+
+def open_raw_pty(what: str, instead: str) -> tuple[int, int, str]:
+    """A new pseudo-terminal in raw mode: ``(master, slave, the slave's path)``. Where the
+    system has none (Windows), one line saying that ``what`` needs one, and ``instead``."""
+    try:
+        import tty
+    except ImportError:             # Windows
+        tty = None
+    if tty is None or not hasattr(os, "openpty"):
+        raise DeviceError(f"{what} needs a pseudo-terminal, which this system does not have "
+                          f"(Linux and macOS do); {instead}")
+    master, slave = os.openpty()
+    # Raw at once: a cooked pty would echo the device's bytes back to it and turn CR into
+    # LF before the host's pyserial gets to set raw mode itself.
+    tty.setraw(slave)
+    return master, slave, os.ttyname(slave)
 
 
 #: Loopback ports by name (``loopback:N``), while their emulator lives.
@@ -621,4 +627,4 @@ def check_alive(emu: PtyEmulator | LoopbackEmulator) -> None:
 
 
 __all__ = ["EmulatedLine", "FaultCounts", "Faults", "FirmwareConfig", "LoopbackEmulator",
-           "LoopbackPort", "PtyEmulator", "check_alive", "open_port"]
+           "LoopbackPort", "PtyEmulator", "check_alive", "open_port", "open_raw_pty"]

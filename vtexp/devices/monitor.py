@@ -41,18 +41,17 @@ class Tap:
         Called with each formatted line.
     """
 
-    def __init__(self, port: Any, emit: Callable[[str], None]):
+    def __init__(self, port: Any, emit: Callable[[str], None], master: int, slave: int,
+                 name: str):
         self.port = port
         self.emit = emit
         self._t0 = time.perf_counter()
         self._readers = {"to_device": wire.FrameReader(), "to_host": wire.FrameReader()}
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        import tty
-        self.master, slave = os.openpty()
-        tty.setraw(slave)
+        self.master = master
         self._slave = slave                   # kept open: the host may reconnect
-        self.host_port = os.ttyname(slave)
+        self.host_port = name
         self.error: str | None = None
         self._threads = [threading.Thread(target=self._device_to_host, daemon=True),
                          threading.Thread(target=self._host_to_device, daemon=True)]
@@ -124,20 +123,19 @@ class Tap:
 
 
 def open_tap(spec: str, baudrate: int, out: TextIO) -> Tap:
-    try:
-        import tty  # noqa: F401  (Tap needs it)
-    except ImportError:                 # Windows
-        tty = None
-    if tty is None or not hasattr(os, "openpty"):
-        raise DeviceError("vtexp device monitor needs a pseudo-terminal to stand in for the "
-                          "device, which this system does not have (Linux and macOS do); "
-                          "run the experiment directly on serial:PORT (e.g. serial:COM3)")
+    from .emulator import open_raw_pty
+
+    master, slave, name = open_raw_pty(
+        "vtexp device monitor (to stand in for the device)",
+        "run the experiment directly on serial:PORT (e.g. serial:COM3)")
     import serial
 
     port_name = spec.partition(":")[2] if spec.startswith("serial:") else spec
     try:
         port = serial.serial_for_url(port_name, baudrate=baudrate, timeout=0.05)
     except (serial.SerialException, ValueError, OSError) as e:
+        os.close(master)
+        os.close(slave)
         raise DeviceError(f"cannot open the serial port {port_name!r}: {e}. "
                           "'vtexp device list' shows the ports found.") from None
-    return Tap(port, lambda line: print(line, file=out, flush=True))
+    return Tap(port, lambda line: print(line, file=out, flush=True), master, slave, name)
