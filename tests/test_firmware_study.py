@@ -25,7 +25,7 @@ import pytest
 
 from vtexp.devices import fwtrace
 
-from conftest import session_record
+from conftest import run_cli, session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "circle_vs_rectangle.yaml"
@@ -35,6 +35,10 @@ MAX_TICK_WAIT_CYCLES = 96   # 6 us: one receive or transmit interrupt, not a 64-
 # grid. A tick that waited for a UART interrupt at the train's start puts the later
 # edges up to that wait before onset + k periods.
 EARLY_US = MAX_TICK_WAIT_CYCLES / 16
+
+# The chip is served by `vtexp device emulate` in a process of its own, as a device is
+# apart from the host, and stopped with Ctrl-C; `vtexp run` runs in the test process.
+pytestmark = pytest.mark.process
 
 
 @pytest.fixture(scope="module")
@@ -56,10 +60,9 @@ def session(tmp_path_factory):
         port = hint.split("--device ")[1].split()[0]
         assert ",heartbeat_ms=1000,reply_ms=250,lockstep=" in port, hint
 
-        run = subprocess.run(
-            [sys.executable, "-m", "vtexp", "run", str(STUDY), "--participant", "01",
-             "--device", port, "--responder", "scripted:random", "--data", str(tmp / "data")],
-            stdin=subprocess.DEVNULL, capture_output=True, text=True, env=env, timeout=600)
+        run = run_cli("run", str(STUDY), "--participant", "01", "--device", port,
+                      "--responder", "scripted:random", "--data", str(tmp / "data"),
+                      timeout=600)
     finally:
         emu.send_signal(signal.SIGINT)             # Ctrl-C, as at the terminal
         out, err = emu.communicate(timeout=30)
