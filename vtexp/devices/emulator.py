@@ -224,6 +224,15 @@ class _Emulator:
     def faults(self, f: Faults) -> None:
         self.line.faults = f
 
+    @property
+    def trace(self) -> Callable[[str, object], None] | None:
+        """Called with ``(direction, message_or_error)`` for every frame; may be replaced."""
+        return self.line.trace
+
+    @trace.setter
+    def trace(self, f: Callable[[str, object], None] | None) -> None:
+        self.line.trace = f
+
     def clock_us(self) -> int:
         """The device's own clock: microseconds since it was powered on."""
         return self.line.clock_us()
