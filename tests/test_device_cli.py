@@ -11,6 +11,7 @@ import threading
 import time
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from vtexp.devices.emulator import PtyEmulator
@@ -145,6 +146,7 @@ def _fast(yaml_text: str, ms: int) -> str:
     return yaml_text.replace("duration_ms: 200, soa_ms: 200", f"duration_ms: {ms}, soa_ms: {ms}")
 
 
+@pytest.mark.realtime          # the one session over a real pty to the emulator, in real time
 def test_run_a_session_on_the_emulator_backend(cli, tmp_path, minimal_yaml):
     exp = tmp_path / "mini.yaml"
     exp.write_text(_fast(minimal_yaml, 10), encoding="utf-8")
@@ -155,8 +157,13 @@ def test_run_a_session_on_the_emulator_backend(cli, tmp_path, minimal_yaml):
     meta = json.loads(next((tmp_path / "data").rglob("*_session.json")).read_text())
     assert meta["device"]["backend"] == "emulator"
     assert meta["device"]["protocol"] == "vtexp-wire/1"
-    events = next((tmp_path / "data").rglob("*_events.tsv")).read_text().splitlines()
+    events = pd.read_csv(next((tmp_path / "data").rglob("*_events.tsv")), sep="\t")
     assert len(events) > 4                  # device-reported onsets, logged per pulse
+    beh = pd.read_csv(next((tmp_path / "data").rglob("*_beh.tsv")), sep="\t")
+    start = events["trial"].map(beh.set_index("trial")["stimulus_onset_ms"])
+    late_ms = events["onset_ms"] - start - events["scheduled_onset_ms"]
+    assert (late_ms >= -0.01).all(), late_ms.min()  # never before its time
+    assert (late_ms != 0).any()              # measured in real time, not copied from the schedule
 
 
 def test_cable_pulled_during_a_session_ends_it_with_a_message_not_a_traceback(

@@ -1,11 +1,12 @@
 """The five studies of experiments/ on the emulated device, through the real command line.
 
-Each study runs its first trials (``--max-trials``) with ``--device emulator``: the
-serial backend talks wire protocol v1 over a pseudo-terminal to the emulated
-firmware, which plays each schedule in real time from its own clock and reports
-the onsets. The runs go one after another, in the test process (``run_cli``); each
-test then checks one study's files, and the last reads them all back with
-``vtexp analyze``.
+Each study runs its first trials (``--max-trials``) with ``--device emulator:virtual``:
+the serial backend talks wire protocol v1, the same bytes as over a pseudo-terminal, to
+the emulated firmware in-process on a virtual clock, which plays each schedule from its
+own clock and reports the onsets (a session over a real pty to the emulator:
+tests/test_device_cli.py). The runs go one after another, in the test process
+(``run_cli``); each test then checks one study's files, and the last reads them all back
+with ``vtexp analyze``.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ def runs(tmp_path_factory):
 
     def run(study: str) -> subprocess.CompletedProcess:
         return run_cli("run", str(EXPERIMENTS / f"{study}.yaml"), "--participant", "01",
-                       "--device", "emulator", "--responder", STUDIES[study],
+                       "--device", "emulator:virtual", "--responder", STUDIES[study],
                        "--max-trials", str(N_TRIALS), "--data", str(data), timeout=120)
 
     results = {study: run(study) for study in STUDIES}
@@ -87,9 +88,11 @@ def test_study_runs_on_the_emulator(runs, study):
     assert events["onset_ms"].notna().all()
     start = events["trial"].map(per_trial["stimulus_onset_ms"])
     late_ms = events["onset_ms"] - start - events["scheduled_onset_ms"]
-    assert (late_ms >= -0.01).all(), late_ms.min()  # never before its time
-    assert (late_ms < 1000).all(), late_ms.max()    # timing is measured by bench/timing.py
-    assert (late_ms != 0).any()                      # measured, not copied from the schedule
+    # On the virtual clock the emulated device plays every pulse exactly at its time (no
+    # thread is ever late there): the host's timeline and the device's agree to the µs.
+    # That onsets are measured, not copied from the schedule, is checked in real time on
+    # a pty (tests/test_device_cli.py); timing is measured by bench/timing.py.
+    assert (late_ms.abs() < 0.01).all(), late_ms.abs().max()
 
 
 def test_analyze_reads_the_emulator_sessions(runs, tmp_path):
