@@ -27,7 +27,11 @@ from vtexp.session import (SessionOptions, SessionPaths, TrialDone, mark_dead_se
                            run_session)
 
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))
-SLOW = MINIMAL.replace("repetitions: 2", "repetitions: 4")
+# Eight trials of 0.8-1 s on sim:realtime: long enough to be stopped mid-session, short
+# enough that the run printed to continue it ends in seconds.
+SLOW = MINIMAL.replace("repetitions: 2", "repetitions: 4").replace(
+    "duration_ms: 200, soa_ms: 200", "duration_ms: 50, soa_ms: 50")
+assert SLOW.count("duration_ms: 50") == 1
 
 
 def vtexp(*args, cwd=None, **kw) -> subprocess.CompletedProcess:
@@ -283,7 +287,9 @@ def test_what_an_older_run_killed_at_start_left_is_rebuilt(tmp_path):
 
 def test_a_serial_session_resumes_on_the_serial_device_and_not_on_sim(tmp_path):
     from vtexp.devices.emulator import PtyEmulator
-    f = write_experiment(tmp_path, MINIMAL)
+    # stimuli of under a second: the emulator on its pty plays them in real time
+    f = write_experiment(tmp_path, MINIMAL.replace("duration_ms: 200, soa_ms: 200",
+                                                   "duration_ms: 50, soa_ms: 50"))
     data = tmp_path / "d"
     emu = PtyEmulator.for_profile(DeviceProfile.load("vest_6x8"))
     emu.start()
