@@ -333,7 +333,9 @@ def test_run_asks_the_experimenter_at_a_terminal(tmp_path, minimal_yaml):
 
 def test_run_checks_the_device_before_the_first_trial(cli, tmp_path, minimal_yaml):
     from conftest import write_experiment
-    f = write_experiment(tmp_path, minimal_yaml)
+    # stimuli of under a second: the emulator on its pty plays them in real time
+    f = write_experiment(tmp_path, minimal_yaml.replace("duration_ms: 200, soa_ms: 200",
+                                                        "duration_ms: 50, soa_ms: 50"))
     r = cli("run", str(f), "-p", "01", "--responder", "scripted:correct", "--data",
             str(tmp_path / "d"), "--device", "emulator", "--quiet")
     assert r.returncode == 0, r.stderr
@@ -411,7 +413,8 @@ def test_test_pulse_plays_only_when_the_experimenter_says_yes(tmp_path, minimal_
 
     from vtexp.devices.emulator import PtyEmulator
     from vtexp.model import DeviceProfile
-    f = write_experiment(tmp_path, minimal_yaml)
+    f = write_experiment(tmp_path, minimal_yaml.replace("duration_ms: 200, soa_ms: 200",
+                                                        "duration_ms: 50, soa_ms: 50"))
     with PtyEmulator.for_profile(DeviceProfile.load("vest_6x8")) as emu:
         run = ["run", str(f), "--device", f"serial:{emu.port}", "--responder",
                "scripted:correct", "--data", str(tmp_path / "d"), "--quiet", "--test-pulse",
