@@ -263,15 +263,13 @@ def test_every_question_answered_with_real_keys_by_ear(study, display, tmp_path)
         (OUT / "spoken_trial1.txt").write_text(listing + "\n")
 
 
-def _label_boxes(r, screen, shot_dir: Path, name: str):
+def _label_boxes(r, screen, name: str):
     """Each label of the screen on show drawn alone: its pixels' bounding box, in height
     units (x right, y up), with the box it must stay in."""
     w, h = r.win.size
     out = []
-    for i, (lb, box) in enumerate(screen.all_labels()):
-        png = r.capture(shot_dir / f"{name}-label{i}.png", only=lb)
-        px = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(png).convert("L"))
-        png.unlink()
+    for lb, box in screen.all_labels():
+        px = np.asarray(r.grab(only=lb).convert("L"))
         ys, xs = np.nonzero(px > 60)
         assert xs.size, f"{name}: label {lb.text!r} drew nothing"
         left, right = (xs.min() - w / 2) / h, (xs.max() + 1 - w / 2) / h
@@ -304,7 +302,7 @@ def test_the_layout_never_overlaps_or_cuts_on_screenshots(size, scale, display):
                     name = (f"{study}-{q.name}-{size[0]}x{size[1]}-scale{scale}"
                             + ("-practice" if practice else "-answered"))
                     r.capture(shots / f"{name}.png")
-                    boxes = _label_boxes(r, screen, shots, name)
+                    boxes = _label_boxes(r, screen, name)
                     half = r.aspect / 2
                     for lb, box, (left, right, bottom, top) in boxes:
                         assert lb.height >= MIN_TEXT * scale - 1e-9

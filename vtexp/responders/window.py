@@ -331,9 +331,10 @@ class WindowResponder:
     def __exit__(self, *exc):
         self.close()
 
-    def capture(self, path: Path | str, only=None) -> Path:
-        """Save the screen on show as a PNG (drawn into the back buffer, not flipped);
-        ``only``: draw just that label (the layout tests measure each label alone)."""
+    def grab(self, only=None):
+        """The screen on show as a picture (a PIL image), drawn into the back buffer, not
+        flipped; ``only``: draw just that label (the layout tests measure each label
+        alone)."""
         if self._draw is None:
             raise RuntimeError("no screen is on show")
         if only is None:
@@ -341,8 +342,13 @@ class WindowResponder:
         else:
             self._label(only)
         frame = self.win.getMovieFrame(buffer="back")
-        self.win.movieFrames.remove(frame)      # saved here, not kept for a movie
+        self.win.movieFrames.remove(frame)      # given here, not kept for a movie
         self.win.clearBuffer()
+        return frame
+
+    def capture(self, path: Path | str, only=None) -> Path:
+        """Save the screen on show as a PNG (see :meth:`grab`)."""
+        frame = self.grab(only)
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         frame.save(path)
