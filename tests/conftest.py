@@ -11,6 +11,8 @@ import time
 
 import pytest
 
+from inprocess import run_in_process
+
 ROOT = Path(__file__).resolve().parents[1]
 GRID = ROOT / "experiments" / "duration_interval_grid.yaml"
 
@@ -20,11 +22,18 @@ def grid_path() -> Path:
     return GRID
 
 
-def run_cli(*args: str, cwd: Path | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
-    """Run ``python -m vtexp ARGS`` as a user would, capturing both streams."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "vtexp", *args], cwd=cwd or ROOT, env=env,
-                          capture_output=True, text=True, timeout=timeout)
+#: ``vtexp ARGS`` run in this process as a fresh ``python -m vtexp`` would run it (see
+#: tests/inprocess.py); the result as ``subprocess.run`` gives it. Tests whose subject is
+#: the process itself (signals, kills, locks, start-up, a terminal) start it with
+#: ``subprocess`` and are marked ``process``.
+run_cli = run_in_process
+
+
+def run_printed(command: list[str], **kwargs) -> subprocess.CompletedProcess:
+    """A command vtexp printed for the user to run (e.g. to continue a session), run with
+    ``run_cli``: it must call vtexp as this test run does, ``python -m vtexp``."""
+    assert command[:3] == [sys.executable, "-m", "vtexp"], command
+    return run_cli(*command[3:], **kwargs)
 
 
 @pytest.fixture
