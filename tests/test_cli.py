@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from conftest import GRID, ROOT
 
@@ -130,6 +131,26 @@ def test_version(cli):
     assert r.returncode == 0 and r.stdout.startswith("vtexp ")
 
 
+@pytest.mark.process
+def test_the_installed_vtexp_script_exits_with_the_commands_status(tmp_path):
+    # The entry point pip installs (vtexp = vtexp.cli:main), run for real; the other
+    # tests call vtexp.cli.main in the test process.
+    exe = Path(sys.executable).parent / "vtexp"
+    assert exe.is_file(), f"vtexp is not installed beside {sys.executable}: pip install -e ."
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    r = subprocess.run([str(exe), "--version"], capture_output=True, text=True, env=env,
+                       cwd=tmp_path, timeout=60)
+    assert r.returncode == 0 and r.stdout.startswith("vtexp ") and r.stderr == ""
+    r = subprocess.run([str(exe), "plan", str(tmp_path / "missing.yaml"), "-p", "01"],
+                       capture_output=True, text=True, env=env, cwd=tmp_path, timeout=60)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == f"vtexp: error: {tmp_path / 'missing.yaml'}: file not found\n"
+    r = subprocess.run([str(exe), "plan"], capture_output=True, text=True, env=env,
+                       cwd=tmp_path, timeout=60)
+    assert r.returncode == 2 and r.stderr.startswith("usage: vtexp plan ")
+    assert "Traceback" not in r.stderr
+
+
 def test_six_mode_study_end_to_end_with_its_papers_analyses(cli, tmp_path):
     six = GRID.parent / "six_mode_ball.yaml"
     for p in ("01", "02", "03"):
@@ -209,19 +230,14 @@ def test_schema_for_editors(cli, tmp_path):
     assert {"ChoiceQuestion", "RatingQuestion", "NumberQuestion"} <= set(defs)
 
 
-def test_console_responder_through_standard_input(tmp_path, minimal_yaml):
-    import os
-    import subprocess
-    import sys
-    from conftest import ROOT, write_experiment
+def test_console_responder_through_standard_input(cli, tmp_path, minimal_yaml):
+    from conftest import write_experiment
     f = write_experiment(tmp_path, minimal_yaml.replace('correct: "{shape}"',
                                                          'correct: "{shape}"\n  replays: 1'))
     # instructions (Enter), then: a wrong entry, a replay, then answers by number or text.
     stdin = "\n" + "x\nr\n1\n" + "2\n" + "circle\n" + "square\n"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    r = subprocess.run([sys.executable, "-m", "vtexp", "run", str(f), "-p", "01",
-                        "--responder", "console", "--data", str(tmp_path / "d"), "--quiet"],
-                       input=stdin, capture_output=True, text=True, env=env, timeout=60)
+    r = cli("run", str(f), "-p", "01", "--responder", "console", "--data", str(tmp_path / "d"),
+            "--quiet", input=stdin, timeout=60)
     assert r.returncode == 0, r.stderr
     assert "1. square" in r.stdout and "'x' is not an answer here" in r.stdout
     tsv = next((tmp_path / "d").rglob("*_beh.tsv"))
@@ -229,9 +245,8 @@ def test_console_responder_through_standard_input(tmp_path, minimal_yaml):
     assert list(beh["answer"]) == ["square", "circle", "circle", "square"]
     assert list(beh["replays"]) == [1, 0, 0, 0] and (beh["rt_s"] >= 0).all()
     # The input ends before the last trial: the session is aborted, the rest kept.
-    r = subprocess.run([sys.executable, "-m", "vtexp", "run", str(f), "-p", "02",
-                        "--responder", "console", "--data", str(tmp_path / "d"), "--quiet"],
-                       input="\n1\n", capture_output=True, text=True, env=env, timeout=60)
+    r = cli("run", str(f), "-p", "02", "--responder", "console", "--data", str(tmp_path / "d"),
+            "--quiet", input="\n1\n", timeout=60)
     assert r.returncode == 130 and "input ended" in r.stderr and "Traceback" not in r.stderr
     meta = json.loads(next((tmp_path / "d").rglob("sub-02/ses-1/*_session.json")).read_text())
     assert meta["status"] == "aborted" and meta["n_trials_logged"] == 1
@@ -273,6 +288,7 @@ def test_run_without_a_participant_and_no_terminal_is_one_message(cli, tmp_path,
     assert r.returncode == 2 and "--test-pulse: asks the experimenter at a terminal" in r.stderr
 
 
+@pytest.mark.process
 def test_run_asks_the_experimenter_at_a_terminal(tmp_path, minimal_yaml):
     from conftest import write_experiment
     f = write_experiment(tmp_path, minimal_yaml)
@@ -355,6 +371,7 @@ def test_a_failed_device_check_stops_before_any_trial(tmp_path, minimal_yaml, mo
     assert not (tmp_path / "d").exists()
 
 
+@pytest.mark.process
 def test_max_trials_stops_and_the_session_resumes(cli, tmp_path, minimal_yaml):
     from conftest import write_experiment
     f = write_experiment(tmp_path, minimal_yaml)
@@ -388,6 +405,7 @@ def test_max_trials_stops_and_the_session_resumes(cli, tmp_path, minimal_yaml):
     assert meta["resumes"][0]["previous_reason"] == "stopped after 3 trials as asked"
 
 
+@pytest.mark.process
 def test_test_pulse_plays_only_when_the_experimenter_says_yes(tmp_path, minimal_yaml):
     from conftest import write_experiment
 
@@ -438,6 +456,7 @@ def test_run_with_a_model_participant(cli, tmp_path):
     assert bad.returncode == 2 and "unknown model option" in bad.stderr
 
 
+@pytest.mark.process
 def test_a_terminal_that_goes_away_at_a_prompt_is_one_message(tmp_path, minimal_yaml):
     import os
     import pty
