@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -22,6 +23,7 @@ ENV = dict(os.environ, PYTHONPATH=str(ROOT))
 
 
 def vtexp(*args: str) -> subprocess.Popen:
+    """``vtexp ARGS`` as a child process: for commands that serve until a signal stops them."""
     return subprocess.Popen([sys.executable, "-m", "vtexp", *args], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
 
@@ -52,13 +54,12 @@ def test_check_unattended_plays_every_actuator_once(cli, emu):
     assert {a.setting.level for a in emu.actuations() if a.index == 5} == {0, 1}   # low level
 
 
-def test_check_asks_a_person_and_reports_what_did_not_move(emu):
-    p = vtexp("device", "check", "--device", f"serial:{emu.port}", "--profile", "vest_6x8",
-              "--on-ms", "10", "--pings", "1")
-    out, err = p.communicate("y\nn\nr\ny\nq\n", timeout=60)
-    assert p.returncode == 1, err
-    assert "stopped after 3 of 48 actuators" in out
-    assert "1 of 3 actuators did not move: (row 0, col 1)" in out
+def test_check_asks_a_person_and_reports_what_did_not_move(cli, emu):
+    r = cli("device", "check", "--device", f"serial:{emu.port}", "--profile", "vest_6x8",
+            "--on-ms", "10", "--pings", "1", input="y\nn\nr\ny\nq\n", timeout=60)
+    assert r.returncode == 1, r.stderr
+    assert "stopped after 3 of 48 actuators" in r.stdout
+    assert "1 of 3 actuators did not move: (row 0, col 1)" in r.stdout
     on = [a.index for a in emu.actuations() if not a.setting.is_off]
     assert on == [0, 1, 2, 2, 3]                # 'r' played (0, 2) again; 'q' after (0, 3)
 
@@ -78,6 +79,7 @@ def test_check_on_a_missing_port(cli):
     assert "cannot open the serial port '/dev/no-such-port'" in r.stderr
 
 
+@pytest.mark.process
 def test_emulate_prints_its_port_and_serves_until_stopped():
     p = vtexp("device", "emulate", "--profile", "vest_6x8")
     try:
@@ -98,19 +100,20 @@ def test_emulate_prints_its_port_and_serves_until_stopped():
     assert "emulator stopped:" in out and "0 bad" in out and "0 watchdog trips" in out
 
 
-def test_emulate_can_pretend_to_be_another_geometry():
+@pytest.mark.process
+def test_emulate_can_pretend_to_be_another_geometry(cli):
     p = vtexp("device", "emulate", "--profile", "vest_6x8", "--rows", "4")
     try:
         port = p.stdout.readline().split(" on ")[-1].strip()
-        r = subprocess.run([sys.executable, "-m", "vtexp", "device", "check", "--device",
-                            f"serial:{port}", "--profile", "vest_6x8", "--yes"],
-                           capture_output=True, text=True, env=ENV, timeout=60, check=False)
+        r = cli("device", "check", "--device", f"serial:{port}", "--profile", "vest_6x8",
+                "--yes", timeout=60)
         assert r.returncode == 3 and "reports 4x6 coin_tactor actuators" in r.stderr
     finally:
         p.send_signal(signal.SIGINT)
         p.communicate(timeout=10)
 
 
+@pytest.mark.process
 def test_monitor_decodes_the_traffic_between_host_and_device(emu):
     p = vtexp("device", "monitor", "--device", f"serial:{emu.port}")
     try:
@@ -157,21 +160,23 @@ def test_run_a_session_on_the_emulator_backend(cli, tmp_path, minimal_yaml):
 
 
 def test_cable_pulled_during_a_session_ends_it_with_a_message_not_a_traceback(
-        tmp_path, minimal_yaml, emu):
+        cli, tmp_path, minimal_yaml, emu):
     exp = tmp_path / "mini.yaml"
     exp.write_text(_fast(minimal_yaml, 100), encoding="utf-8")
-    p = vtexp("run", str(exp), "-p", "01", "--device", f"serial:{emu.port}", "--responder",
-              "scripted:correct", "--data", str(tmp_path / "data"), "-q")
-    try:
+
+    def pull_the_cable():
         deadline = time.monotonic() + 30
         while len(emu.actuations()) < 3 and time.monotonic() < deadline:
             time.sleep(0.01)
         emu.unplug()                        # mid-trial: the first stimulus is playing
-        _, err = p.communicate(timeout=30)
-    finally:
-        if p.poll() is None:
-            p.kill()
-    assert p.returncode == 3, err
+
+    puller = threading.Thread(target=pull_the_cable, daemon=True)
+    puller.start()
+    r = cli("run", str(exp), "-p", "01", "--device", f"serial:{emu.port}", "--responder",
+            "scripted:correct", "--data", str(tmp_path / "data"), "-q", timeout=60)
+    puller.join(5)
+    err = r.stderr
+    assert r.returncode == 3, err
     assert err.startswith(f"vtexp: error: lost contact with the tactile device on {emu.port}")
     assert "Traceback" not in err
     meta = json.loads(next((tmp_path / "data").rglob("*_session.json")).read_text())
