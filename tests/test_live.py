@@ -353,9 +353,8 @@ def test_frames_from_another_program_on_standard_input(tmp_path):
                 "    sys.stdout.buffer.write(img.tobytes())\n")
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     p1 = subprocess.Popen([sys.executable, "-c", producer], stdout=subprocess.PIPE, env=env)
-    r = subprocess.run([sys.executable, "-m", "vtexp", "live", "-", "--pipeline", "edge-trace",
-                        "--frame-size", "160x120", "--record", str(tmp_path / "rec")],
-                       stdin=p1.stdout, capture_output=True, text=True, env=env, timeout=120)
+    r = run_cli("live", "-", "--pipeline", "edge-trace", "--frame-size", "160x120", "--record",
+                str(tmp_path / "rec"), stdin=p1.stdout, timeout=120)
     p1.stdout.close()
     p1.wait()
     assert r.returncode == 0, r.stderr
@@ -451,10 +450,9 @@ def test_a_camera_that_stops_delivering_is_one_message(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     p1 = subprocess.Popen([sys.executable, "-c", producer], stdout=subprocess.PIPE, env=env)
     try:
-        r = subprocess.run([sys.executable, "-m", "vtexp", "live", "-", "--pipeline",
-                            "edge-trace", "--frame-size", "160x120", "--device", "emulator",
-                            "--stall-s", "1", "--record", str(tmp_path / "rec")],
-                           stdin=p1.stdout, capture_output=True, text=True, env=env, timeout=60)
+        r = run_cli("live", "-", "--pipeline", "edge-trace", "--frame-size", "160x120",
+                    "--device", "emulator", "--stall-s", "1", "--record", str(tmp_path / "rec"),
+                    stdin=p1.stdout, timeout=60)
     finally:
         p1.kill()
         p1.wait()
@@ -463,6 +461,7 @@ def test_a_camera_that_stops_delivering_is_one_message(tmp_path):
     assert rec.meta["status"] == "failed" and rec.states()[-1][1] == {}
 
 
+@pytest.mark.process
 def test_ctrl_c_stops_with_everything_off(tmp_path, videos):
     path, _ = videos["rectangle"]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
