@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from conftest import MINIMAL, ROOT, write_experiment
+from conftest import MINIMAL, ROOT, run_cli, run_printed, write_experiment
 from vtexp.devices import open_device
 from vtexp.errors import DeviceError, InputError, SessionError
 from vtexp.experiment import load_experiment
@@ -30,8 +30,7 @@ SLOW = MINIMAL.replace("repetitions: 2", "repetitions: 4")
 
 
 def vtexp(*args, cwd=None, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "vtexp", *map(str, args)], cwd=cwd or ROOT,
-                          env=ENV, capture_output=True, text=True, timeout=180, **kw)
+    return run_cli(*map(str, args), cwd=cwd or ROOT, timeout=180, **kw)
 
 
 def paths_of(data, participant="01", session=1, name="mini", task="mini"):
@@ -49,6 +48,7 @@ def printed_command(text: str) -> list[str]:
 
 # --------------------------------------------------------------------------- the lock
 
+@pytest.mark.process
 def test_a_second_run_of_a_running_session_is_refused_naming_the_process(tmp_path):
     f = write_experiment(tmp_path, SLOW)
     data = tmp_path / "d"
@@ -79,6 +79,7 @@ def test_a_second_run_of_a_running_session_is_refused_naming_the_process(tmp_pat
     assert not beh.duplicated(["trial"]).any()
 
 
+@pytest.mark.process
 def test_a_stale_lock_of_a_killed_run_is_recognised_and_the_session_marked(tmp_path):
     f = write_experiment(tmp_path, SLOW)
     data = tmp_path / "d"
@@ -107,8 +108,7 @@ def test_a_stale_lock_of_a_killed_run_is_recognised_and_the_session_marked(tmp_p
     # The printed command continues it, from another folder, on the device it ran on.
     cmd = printed_command(r.stdout)
     assert cmd[cmd.index("--device") + 1] == "sim:realtime"
-    r = subprocess.run(cmd + ["--quiet"], cwd=tmp_path, env=ENV, capture_output=True,
-                       text=True, timeout=180)
+    r = run_printed(cmd + ["--quiet"], cwd=tmp_path, timeout=180)
     assert r.returncode == 0, r.stderr
     meta = json.loads(rec.read_text())
     assert meta["status"] == "completed" and meta["n_trials_logged"] == 8
@@ -117,6 +117,7 @@ def test_a_stale_lock_of_a_killed_run_is_recognised_and_the_session_marked(tmp_p
     assert list(trials) == list(range(1, 9))
 
 
+@pytest.mark.process
 def test_the_lock_names_its_holder_and_is_released(tmp_path):
     lock = SessionLock.acquire(tmp_path, what="session 1 of participant 01")
     holder = json.loads((tmp_path / "session.lock").read_text())
@@ -375,14 +376,14 @@ def test_every_interruption_prints_the_command_that_continues(tmp_path, monkeypa
     assert "To continue session 1 of participant 01 where it stopped:" in err
     cmd = printed_command(err)
     monkeypatch.undo()
-    r = subprocess.run(cmd + ["--quiet"], cwd=ROOT, env=ENV, capture_output=True, text=True,
-                       timeout=180)
+    r = run_printed(cmd + ["--quiet"], cwd=ROOT, timeout=180)
     assert r.returncode == 0, r.stderr
     meta = json.loads(paths_of(data).session_json.read_text())
     assert meta["status"] == "completed" and meta["n_trials_logged"] == 4
     assert meta["resumes"][0]["trials_done"] == 2
 
 
+@pytest.mark.process
 def test_ctrl_c_prints_the_command_that_continues(tmp_path):
     f = write_experiment(tmp_path, SLOW)
     data = tmp_path / "d"
@@ -398,8 +399,7 @@ def test_ctrl_c_prints_the_command_that_continues(tmp_path):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and "Traceback" not in err, err
     cmd = printed_command(err)
-    r = subprocess.run(cmd + ["--quiet"], cwd=tmp_path, env=ENV, capture_output=True, text=True,
-                       timeout=180)
+    r = run_printed(cmd + ["--quiet"], cwd=tmp_path, timeout=180)
     assert r.returncode == 0, r.stderr
     assert json.loads(paths_of(data).session_json.read_text())["status"] == "completed"
 

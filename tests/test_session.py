@@ -165,6 +165,7 @@ def _complete_rows(path):
     return complete, partial
 
 
+@pytest.mark.process
 @pytest.mark.parametrize("kill_after", [1, 7, 23])
 def test_sigkill_between_trials_keeps_every_completed_row(tmp_path, kill_after):
     proc = _child(tmp_path, "K", 0.01)
@@ -190,6 +191,7 @@ def test_sigkill_between_trials_keeps_every_completed_row(tmp_path, kill_after):
     assert json.loads(paths.session_json.read_text())["status"] == "running"
 
 
+@pytest.mark.process
 def test_sigkill_at_random_moments_never_corrupts_the_log(tmp_path):
     rng = random.Random(20261122)
     for i in range(6):
@@ -222,6 +224,7 @@ def test_truncated_last_row_is_reported_and_ignored(tmp_path, grid_lx):
     assert any("changed since the session ended" in w for w in data.warnings)
 
 
+@pytest.mark.process
 def test_sigterm_aborts_cleanly_and_marks_the_session(tmp_path):
     # sim:realtime takes the stimuli's real time, so the session is still running
     # when the signal arrives; the CLI turns SIGTERM into an orderly abort.
@@ -346,6 +349,7 @@ def _comparable(paths):
             ev.drop(columns=["onset_ms", "onset"]))
 
 
+@pytest.mark.process
 def test_killed_at_random_moments_and_resumed_equals_an_uninterrupted_run(tmp_path):
     # The reference: the same participant's session run straight through.
     ref = _child(tmp_path / "ref", "K9", 0.0)
