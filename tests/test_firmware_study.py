@@ -34,6 +34,15 @@ MAX_TICK_WAIT_CYCLES = 96   # 6 us: one receive or transmit interrupt, not a 64-
 # edges up to that wait before onset + k periods.
 EARLY_US = MAX_TICK_WAIT_CYCLES / 16
 
+# The chip is served by `vtexp device emulate` in a process of its own, as a device is
+# apart from the host, and stopped with Ctrl-C. `vtexp run` stays a child process too:
+# the pins depend on when the host's frames reach the chip (a tick late for a
+# preparation waits for the interrupt before it, docs/firmware.md), and in the test
+# process the host's timing differs. Either way the checks below can fail on the host's
+# timing alone: in the test process two runs in seven had a tick wait 114 cycles, past
+# the bound below; as a child, one in seven had a pulse the log does not explain.
+pytestmark = pytest.mark.process
+
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):

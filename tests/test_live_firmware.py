@@ -29,6 +29,10 @@ from vtexp.safety import check_schedule, outputs_schedule
 SMA = DeviceProfile.load("sma_5x5")
 TICK_US = 100.0          # the firmware's output tick
 
+# The chip is served by `vtexp device emulate` in a process of its own, as a device is
+# apart from the host, and stopped with Ctrl-C; `vtexp live` runs in the test process.
+pytestmark = pytest.mark.process
+
 
 @pytest.fixture(scope="module")
 def live_on_the_chip(tmp_path_factory):

@@ -3,23 +3,21 @@
 Each study runs its first trials (``--max-trials``) with ``--device emulator``: the
 serial backend talks wire protocol v1 over a pseudo-terminal to the emulated
 firmware, which plays each schedule in real time from its own clock and reports
-the onsets. The runs go two at a time (about 35 s in all); each test then checks
-one study's files, and the last reads them all back with ``vtexp analyze``.
+the onsets. The runs go one after another, in the test process (``run_cli``); each
+test then checks one study's files, and the last reads them all back with
+``vtexp analyze``.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-from conftest import session_record
+from conftest import run_cli, session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = ROOT / "experiments"
@@ -40,20 +38,13 @@ QUESTIONS = {"whirlpool": 2}            # rows per trial in the log
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     data = tmp_path_factory.mktemp("studies")
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
 
     def run(study: str) -> subprocess.CompletedProcess:
-        return subprocess.run(
-            [sys.executable, "-m", "vtexp", "run", str(EXPERIMENTS / f"{study}.yaml"),
-             "--participant", "01", "--device", "emulator", "--responder", STUDIES[study],
-             "--max-trials", str(N_TRIALS), "--data", str(data)],
-            stdin=subprocess.DEVNULL, capture_output=True, text=True, env=env, timeout=120,
-            check=False)
+        return run_cli("run", str(EXPERIMENTS / f"{study}.yaml"), "--participant", "01",
+                       "--device", "emulator", "--responder", STUDIES[study],
+                       "--max-trials", str(N_TRIALS), "--data", str(data), timeout=120)
 
-    # Two at a time: each emulator plays in real time and answers heartbeats within
-    # a period; more at once on a small machine starves them.
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        results = dict(zip(STUDIES, pool.map(run, STUDIES)))
+    results = {study: run(study) for study in STUDIES}
     return data, results
 
 
@@ -104,10 +95,7 @@ def test_study_runs_on_the_emulator(runs, study):
 def test_analyze_reads_the_emulator_sessions(runs, tmp_path):
     data, results = runs
     assert all(r.returncode == 0 for r in results.values())
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    r = subprocess.run([sys.executable, "-m", "vtexp", "analyze", str(data), "--out",
-                        str(tmp_path / "report")], capture_output=True, text=True, env=env,
-                       timeout=300, check=False)
+    r = run_cli("analyze", str(data), "--out", str(tmp_path / "report"), timeout=300)
     assert r.returncode == 0, r.stderr
     n_rows = N_TRIALS * sum(QUESTIONS.get(s, 1) for s in STUDIES)
     assert f"{len(STUDIES)} session(s), {n_rows} trials." in r.stdout
