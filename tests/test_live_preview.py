@@ -1,22 +1,24 @@
 """The experimenter's live preview in a real PsychoPy window on a virtual X server (Xvfb):
 ``vtexp live --preview`` for each pipeline, a screenshot of each under
 ``test-output/live/``, the safety guard's degradations on screen, and a real Escape key
-press (XTEST) that ends the run with every actuator off."""
+press (XTEST) that ends the run with every actuator off.
+
+The command runs in the test process (``run_cli``), on the X server the window tests of
+this process share (``tests/conftest.py``'s ``xvfb``): pyglet stays connected to the
+first display a process opens."""
 
 from __future__ import annotations
 
 import importlib.util
-import os
 import shutil
-import subprocess
-import sys
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import ROOT, start_xvfb, worker_number
+from conftest import ROOT, run_cli
 
 if importlib.util.find_spec("psychopy") is None:
     pytest.skip("PsychoPy is not installed (the 'gui' extra; make test installs it)",
@@ -28,12 +30,10 @@ SHOTS = ROOT / "test-output" / "live"
 
 
 @pytest.fixture(scope="module")
-def display():
-    # a display range above the window tests' (tests/conftest.py)
-    with start_xvfb(200 + 40 * worker_number(), "1400x900x24") as disp:
-        shutil.rmtree(SHOTS, ignore_errors=True)
-        SHOTS.mkdir(parents=True)
-        yield disp
+def display(xvfb):
+    shutil.rmtree(SHOTS, ignore_errors=True)
+    SHOTS.mkdir(parents=True)
+    return xvfb
 
 
 @pytest.fixture(scope="module")
@@ -47,9 +47,7 @@ def videos(tmp_path_factory):
 
 
 def live(display, *args, timeout=120):
-    env = dict(os.environ, PYTHONPATH=str(ROOT), DISPLAY=display)
-    return subprocess.run([sys.executable, "-m", "vtexp", "live", *args], capture_output=True,
-                          text=True, env=env, timeout=timeout, cwd=ROOT)
+    return run_cli("live", *args, timeout=timeout)       # DISPLAY: the xvfb fixture's
 
 
 def assert_not_blank(png: Path):
@@ -82,18 +80,17 @@ def test_escape_in_the_preview_ends_the_run_with_everything_off(display, videos)
     from Xlib import display as xdisplay
     from Xlib.ext import xtest
 
-    env = dict(os.environ, PYTHONPATH=str(ROOT), DISPLAY=display)
     rec = SHOTS.parent / "live-escape-record"
     shutil.rmtree(rec, ignore_errors=True)
-    p = subprocess.Popen([sys.executable, "-m", "vtexp", "live", str(videos["rectangle"]),
-                          "--pipeline", "edge-trace", "--device", "emulator", "--preview",
-                          "--record", str(rec)], stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
-    try:
+    pressed = threading.Event()
+    done = threading.Event()
+
+    def experimenter():                     # the run holds this thread: keys from another
         deadline = time.monotonic() + 60
         while not (rec / "outputs.tsv").exists() or \
                 len((rec / "outputs.tsv").read_text().splitlines()) < 3:
-            assert p.poll() is None and time.monotonic() < deadline, p.stderr.read()
+            if done.is_set() or time.monotonic() > deadline:
+                return
             time.sleep(0.05)
         d = xdisplay.Display(display)
         w, h = d.screen().width_in_pixels, d.screen().height_in_pixels
@@ -103,11 +100,19 @@ def test_escape_in_the_preview_ends_the_run_with_everything_off(display, videos)
         xtest.fake_input(d, X.KeyRelease, code)
         d.sync()
         d.close()
-        out, err = p.communicate(timeout=30)
+        pressed.set()
+
+    keys = threading.Thread(target=experimenter, daemon=True)
+    keys.start()
+    try:
+        r = run_cli("live", str(videos["rectangle"]), "--pipeline", "edge-trace", "--device",
+                    "emulator", "--preview", "--record", str(rec), timeout=90)
     finally:
-        if p.poll() is None:
-            p.kill()
-    assert p.returncode == 0, err
+        done.set()
+        keys.join(10)
+    assert pressed.is_set(), r.stderr
+    out, err = r.stdout, r.stderr
+    assert r.returncode == 0, err
     assert "ended: preview closed by the experimenter (Escape); every actuator is off" in out
     from vtexp.live.record import load_record
 
