@@ -466,6 +466,7 @@ def run_python(code: str) -> subprocess.CompletedProcess:
                           text=True, timeout=120, cwd=ROOT)
 
 
+@pytest.mark.process
 def test_vtexp_imports_without_psychopy_and_says_how_to_install_it():
     hide = "import sys; sys.modules['psychopy'] = None\n"
     r = run_python(hide + "import vtexp, vtexp.cli, vtexp.session, vtexp.responders\n"
@@ -479,6 +480,7 @@ def test_vtexp_imports_without_psychopy_and_says_how_to_install_it():
     assert "Traceback" not in r.stderr and not (ROOT / "unused").exists()
 
 
+@pytest.mark.process
 def test_importing_psychopy_leaves_home_and_the_environment_alone(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT), HOME=str(tmp_path))
     env.pop("PYTHONUSERBASE", None)
@@ -494,7 +496,10 @@ def test_importing_psychopy_leaves_home_and_the_environment_alone(tmp_path):
     assert not (tmp_path / ".psychopy3").exists()
 
 
+@pytest.mark.process
 def test_without_a_display_the_window_says_so_in_one_message(tmp_path):
+    # a process of its own: pyglet connects to a display once per process, and this
+    # process has the window tests' one
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     env.pop("DISPLAY", None)
     r = subprocess.run([sys.executable, "-m", "vtexp", "run", str(write_experiment(
