@@ -23,17 +23,10 @@ def grid_path() -> Path:
 
 
 #: ``vtexp ARGS`` run in this process as a fresh ``python -m vtexp`` would run it (see
-#: tests/inprocess.py); the result as ``subprocess.run`` gives it.
+#: tests/inprocess.py); the result as ``subprocess.run`` gives it. Tests whose subject is
+#: the process itself (signals, kills, locks, start-up, a terminal) start it with
+#: ``subprocess`` and are marked ``process``.
 run_cli = run_in_process
-
-
-def run_process(*args: str, cwd: Path | None = None, timeout: float = 120,
-                **kwargs) -> subprocess.CompletedProcess:
-    """Run ``python -m vtexp ARGS`` in a child process, capturing both streams: for the
-    tests whose subject is the process (signals, kills, locks, start-up, a terminal)."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "vtexp", *args], cwd=cwd or ROOT, env=env,
-                          capture_output=True, text=True, timeout=timeout, **kwargs)
 
 
 def run_printed(command: list[str], **kwargs) -> subprocess.CompletedProcess:

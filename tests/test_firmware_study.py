@@ -25,7 +25,7 @@ import pytest
 
 from vtexp.devices import fwtrace
 
-from conftest import run_cli, session_record
+from conftest import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "circle_vs_rectangle.yaml"
@@ -37,7 +37,12 @@ MAX_TICK_WAIT_CYCLES = 96   # 6 us: one receive or transmit interrupt, not a 64-
 EARLY_US = MAX_TICK_WAIT_CYCLES / 16
 
 # The chip is served by `vtexp device emulate` in a process of its own, as a device is
-# apart from the host, and stopped with Ctrl-C; `vtexp run` runs in the test process.
+# apart from the host, and stopped with Ctrl-C. `vtexp run` stays a child process too:
+# the pins depend on when the host's frames reach the chip (a tick late for a
+# preparation waits for the interrupt before it, docs/firmware.md), and in the test
+# process the host's timing differs. Either way the checks below can fail on the host's
+# timing alone: in the test process two runs in seven had a tick wait 114 cycles, past
+# the bound below; as a child, one in seven had a pulse the log does not explain.
 pytestmark = pytest.mark.process
 
 
@@ -60,9 +65,10 @@ def session(tmp_path_factory):
         port = hint.split("--device ")[1].split()[0]
         assert ",heartbeat_ms=1000,reply_ms=250,lockstep=" in port, hint
 
-        run = run_cli("run", str(STUDY), "--participant", "01", "--device", port,
-                      "--responder", "scripted:random", "--data", str(tmp / "data"),
-                      timeout=600)
+        run = subprocess.run(
+            [sys.executable, "-m", "vtexp", "run", str(STUDY), "--participant", "01",
+             "--device", port, "--responder", "scripted:random", "--data", str(tmp / "data")],
+            stdin=subprocess.DEVNULL, capture_output=True, text=True, env=env, timeout=600)
     finally:
         emu.send_signal(signal.SIGINT)             # Ctrl-C, as at the terminal
         out, err = emu.communicate(timeout=30)
