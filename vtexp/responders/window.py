@@ -43,6 +43,7 @@ import os
 import shutil
 import sys
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Callable, Sequence
@@ -55,6 +56,13 @@ from .base import Replay, Response
 from .layout import GAP, LINE as LAYOUT_LINE, MIN_TEXT, PAD as LAYOUT_PAD, Box, Label, \
     LayoutError, Screen, grid as layout_grid, needed_height, text_block
 from .speech import PsychopyAudio, Speech, Voice, masking_noise, phrase_book
+
+# At most this many frames a second. A display that waits for its refresh (vsync, as a
+# lab monitor does) never reaches it; where the flip returns at once (a virtual X
+# server, a driver with vsync off) the loop would otherwise draw as fast as it can,
+# taking a whole core to show a screen that does not change. Keys are read once a frame:
+# 240 a second reads them every ~4 ms, finer than a 60 Hz monitor's 16.7 ms.
+MAX_FRAME_RATE = 240.0
 
 INSTALL_HELP = (
     "the participant window needs PsychoPy, the 'gui' extra: pip install -e '.[gui]' "
@@ -263,6 +271,7 @@ class WindowResponder:
         self._mouse = None
         self._mouse_at_entry = None
         self._was_pressed = False
+        self._last_flip = 0.0
         self._stims: dict[tuple, object] = {}
         self._practice_seen = False
         self._paused = False
@@ -891,7 +900,11 @@ class WindowResponder:
         if self.speech is not None:
             self.speech.update()
         self._draw()
+        wait = self._last_flip + 1.0 / MAX_FRAME_RATE - time.perf_counter()
+        if wait > 0:            # the display did not wait for its refresh: pace the frames
+            time.sleep(wait)
         self.win.flip()
+        self._last_flip = time.perf_counter()
         got = []
         if not collect:         # keys wait for the next screen (the abort key aborts there)
             return got
