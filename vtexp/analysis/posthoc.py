@@ -25,12 +25,10 @@ from scipy import stats
 from ..errors import InputError
 from .anova import PooledModel, _as_list, grid_function, within_design
 from .effect_sizes import DZ_CI_LEVEL, dz_ci
+from .spec import PADJUST_METHODS
 
 __all__ = ["p_adjust", "pairwise_tests", "trend_contrasts", "polynomial_contrasts",
            "PADJUST_METHODS"]
-
-PADJUST_METHODS = ("holm", "bonferroni", "BH", "fdr", "sidak", "none")
-
 
 def p_adjust(p, method: str = "holm") -> np.ndarray:
     """Adjusted p values, as R's ``p.adjust`` (and emmeans for Šidák).

@@ -61,6 +61,10 @@ class SimpleEffectsSpec(Model):
                                           "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
 
 
+#: The family-wise corrections of post-hoc comparisons (R's ``p.adjust`` names, and Šidák).
+PADJUST_METHODS = ("holm", "bonferroni", "BH", "fdr", "sidak", "none")
+
+
 class PosthocSpec(Model):
     """Paired comparisons between the levels of ``factor`` (within each level of ``by``)."""
 
@@ -68,7 +72,7 @@ class PosthocSpec(Model):
     by: str | None = None
     dv: Measure = "rate"
     within: list[str] | None = None
-    padjust: Literal["holm", "bonferroni", "BH", "fdr", "sidak", "none"] = "holm"
+    padjust: Literal[PADJUST_METHODS] = "holm"
     error: Literal["paired", "pooled"] = Field(
         "paired", description="paired: per-participant tests; pooled: the ANOVA model's "
                               "error (emmeans)")

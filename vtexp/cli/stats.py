@@ -272,7 +272,7 @@ def _confusion_args(s) -> None:
 
 def register(subparsers) -> None:
     """Add ``vtexp stats`` and its subcommands to the ``vtexp`` parser."""
-    from ..analysis.posthoc import PADJUST_METHODS
+    from ..analysis.spec import PADJUST_METHODS
     st = subparsers.add_parser(
         "stats", help="statistics on any tidy CSV (ANOVA, post hoc, rank tests, kappa, "
                       "information transfer, mixed logit)",
