@@ -129,6 +129,27 @@ def xvfb():
         os.environ["DISPLAY"] = old
 
 
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory):
+    """``vtexp demo --participants 3`` run once for the whole test run, shared by every
+    pytest-xdist worker (the first to ask makes it, under a lock): ``(root, stdout)``.
+    Read only: a test that changes a demo dataset copies it first."""
+    import fcntl
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent                      # the workers' common folder
+    root, out = base / "shared-demo", base / "shared-demo.stdout"
+    with open(base / "shared-demo.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not out.exists():
+            shutil.rmtree(root, ignore_errors=True)
+            r = run_cli("demo", "--data", str(root), "--participants", "3", cwd=base,
+                        timeout=600)
+            assert r.returncode == 0, r.stderr
+            out.write_text(r.stdout)
+    return root, out.read_text()
+
+
 def session_record(ses: Path) -> Path:
     """The session record of a BIDS session folder (``.../sub-P/ses-N`` or its ``beh/``):
     ``sourcedata/vtexp/sub-P/ses-N/*_session.json`` of the same dataset."""

@@ -51,11 +51,8 @@ EXPECTED_WARNINGS = {
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    root = tmp_path_factory.mktemp("bids") / "demo"
-    r = run_cli("demo", "--data", str(root), "--participants", "2", timeout=300)
-    assert r.returncode == 0, r.stderr
-    return root
+def demo(demo_run):
+    return demo_run[0]
 
 
 @pytest.mark.parametrize("study", ["six_mode_ball", "duration_interval_grid", "whirlpool",
@@ -64,7 +61,7 @@ def test_the_demo_datasets_are_valid_bids(demo, study):
     v = validate(demo / study)
     assert v["errors"] == [], v["errors"]
     assert set(v["warnings"]) <= EXPECTED_WARNINGS, v["warnings"]
-    assert v["summary"]["subjects"] == ["sim01", "sim02"]
+    assert v["summary"]["subjects"] == ["sim01", "sim02", "sim03"]
     assert "beh" in v["summary"]["modalities"] or "behavioral" in str(v["summary"]).lower()
     d = demo / study
     desc = json.loads((d / "dataset_description.json").read_text())

@@ -16,13 +16,8 @@ pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromiu
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    from conftest import run_cli
-    root = tmp_path_factory.mktemp("demo")
-    r = run_cli("demo", "--data", str(root / "demo"), "--participants", "3", cwd=root,
-                timeout=600)
-    assert r.returncode == 0, r.stderr
-    return root / "demo"
+def demo(demo_run):
+    return demo_run[0]
 
 
 STUDIES = ["six_mode_ball", "duration_interval_grid", "whirlpool", "circle_vs_rectangle"]
