@@ -269,13 +269,32 @@ def _label_boxes(r, screen, name: str):
     w, h = r.win.size
     out = []
     for lb, box in screen.all_labels():
-        px = np.asarray(r.grab(only=lb).convert("L"))
-        ys, xs = np.nonzero(px > 60)
-        assert xs.size, f"{name}: label {lb.text!r} drew nothing"
-        left, right = (xs.min() - w / 2) / h, (xs.max() + 1 - w / 2) / h
-        top, bottom = (h / 2 - ys.min()) / h, (h / 2 - ys.max() - 1) / h
+        lit = _lit_pixels(r, lb)
+        cols, rows = np.flatnonzero(lit.any(axis=0)), np.flatnonzero(lit.any(axis=1))
+        assert cols.size, f"{name}: label {lb.text!r} drew nothing"
+        left, right = (cols[0] - w / 2) / h, (cols[-1] + 1 - w / 2) / h
+        top, bottom = (h / 2 - rows[0]) / h, (h / 2 - rows[-1] - 1) / h
         out.append((lb, box, (left, right, bottom, top)))
     return out
+
+
+def _lit_pixels(r, lb) -> np.ndarray:
+    """The pixels a label lights when drawn alone into the back buffer (rows from the
+    top): PIL's grey level ``L`` above 60, as on :meth:`WindowResponder.grab`'s picture,
+    read straight from OpenGL (a whole picture per label took most of this test)."""
+    import ctypes
+    from pyglet import gl
+    r._label(lb)
+    w, h = r.win.size
+    px = np.empty((h, w, 4), np.uint8)
+    gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0 if r.win.useFBO else gl.GL_BACK)
+    gl.glPixelStorei(gl.GL_PACK_ALIGNMENT, 1)
+    gl.glReadPixels(0, 0, w, h, gl.GL_RGBA, gl.GL_UNSIGNED_BYTE,
+                    px.ctypes.data_as(ctypes.POINTER(gl.GLubyte)))
+    r.win.clearBuffer()
+    rgb = px[::-1, :, :3].astype(np.uint32)
+    grey = (rgb[..., 0] * 19595 + rgb[..., 1] * 38470 + rgb[..., 2] * 7471 + 0x8000) >> 16
+    return grey > 60
 
 
 @pytest.mark.parametrize("size", [(1280, 800), (1920, 1080)])
