@@ -61,10 +61,12 @@ venv-test: system-packages $(VENV)/.test
 demo: $(VENV)/.core
 	$(BIN)/vtexp demo
 
-# Two test processes (pytest-xdist), each test file whole in one of them: most of the
-# suite waits on real time (windows, speech, devices played at their pace).
+# Three test processes (pytest-xdist), each test file whole in one of them. Most tests
+# run on a virtual clock; those whose subject is real time (a real pty, the firmware in
+# simavr, the window under Xvfb, signals to a process) wait on it, and a third process
+# keeps both cores busy while they do.
 test: system-packages $(VENV)/.test
-	$(BIN)/python -m pytest -n 2 --dist loadfile
+	$(BIN)/python -m pytest -n 3 --dist loadfile
 
 clean:
 	rm -rf $(VENV) .pytest_cache test-output
