@@ -371,7 +371,19 @@ def anova_arrays(values: np.ndarray, shape: tuple[int, ...]) -> dict[str, np.nda
         for k, v in zip(out, (ss, sse, np.full_like(ss, df1), np.full_like(ss, df2), F,
                               gg, hf, W, pm)):
             out[k].append(v)
-    res = {k: np.stack(v, axis=-1) for k, v in out.items()}
+    res = _p_values({k: np.stack(v, axis=-1) for k, v in out.items()})
+    df2 = res["df2"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        all_error = res["SS_error"].sum(axis=-1, keepdims=True) + ss_subjects[..., None]
+        res["ges"] = res["SS"] / (res["SS"] + all_error)
+    res["MSE"] = res["SS_error"] / df2
+    return res
+
+
+def _p_values(res: dict) -> dict:
+    """Add to a table of F tests (``F``, ``df1``, ``df2``, ``eps_gg``, ``eps_hf``, ``SS``,
+    ``SS_error``) the uncorrected, Greenhouse–Geisser and Huynh–Feldt p values (the
+    Huynh–Feldt ε capped at 1) and partial η² = SS / (SS + SS_error)."""
     F, df1, df2 = res["F"], res["df1"], res["df2"]
     res["p"] = stats.f.sf(F, df1, df2)
     res["p_gg"] = stats.f.sf(F, df1 * res["eps_gg"], df2 * res["eps_gg"])
@@ -379,9 +391,6 @@ def anova_arrays(values: np.ndarray, shape: tuple[int, ...]) -> dict[str, np.nda
     res["p_hf"] = stats.f.sf(F, df1 * hf, df2 * hf)
     with np.errstate(divide="ignore", invalid="ignore"):
         res["pes"] = res["SS"] / (res["SS"] + res["SS_error"])
-        all_error = res["SS_error"].sum(axis=-1, keepdims=True) + ss_subjects[..., None]
-        res["ges"] = res["SS"] / (res["SS"] + all_error)
-    res["MSE"] = res["SS_error"] / df2
     return res
 
 
@@ -481,14 +490,8 @@ def mixed_anova_arrays(values: np.ndarray, shape: tuple[int, ...], group: np.nda
             F = (ss / df1) / (sse / df2)
         for k, v in zip(keys, (ss, sse, df1, df2, F, gg, hf, Wm, pm, wi)):
             out[k].append(v)
-    res = {k: np.asarray(v, dtype=float) for k, v in out.items()}
-    F, df1, df2 = res["F"], res["df1"], res["df2"]
-    res["p"] = stats.f.sf(F, df1, df2)
-    res["p_gg"] = stats.f.sf(F, df1 * res["eps_gg"], df2 * res["eps_gg"])
-    hfc = np.minimum(res["eps_hf"], 1.0)
-    res["p_hf"] = stats.f.sf(F, df1 * hfc, df2 * hfc)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        res["pes"] = res["SS"] / (res["SS"] + res["SS_error"])
+    res = _p_values({k: np.asarray(v, dtype=float) for k, v in out.items()})
+    df2 = res["df2"]
     # every stratum's error once: the participants' (within term none) and one per within term
     res["SS_strata"] = np.array([per_w[w][1] for w in wterms])
     res["MSE"] = res["SS_error"] / df2

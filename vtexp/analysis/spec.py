@@ -26,6 +26,18 @@ from ..model import Model
 Measure = Literal["rate", "rt_s", "replays", "answer"]
 
 
+def _where():
+    """The ``where:`` of the ANOVA family: the trials analysed, by level."""
+    return Field(default_factory=dict, description="only the trials at these levels, e.g. "
+                 "{display: dynamic} (seed 000's 2 x 2 of the dynamic modes)")
+
+
+def _between():
+    """The ``between:`` of the ANOVA family: factors from the participants table."""
+    return Field(default_factory=list, description="between-participant factors: columns of "
+                 "the participants table (participants.tsv), e.g. group")
+
+
 class AnovaSpec(Model):
     """A repeated-measures ANOVA of a measure on within-participant factors."""
 
@@ -35,12 +47,8 @@ class AnovaSpec(Model):
         "auto", description="which p the report's sentences give; auto = Greenhouse–Geisser "
                             "when Mauchly's test rejects sphericity (p < .05)")
     note: str = Field("", description="what the paper reported, shown beside the result")
-    where: dict[str, str | list[str]] = Field(
-        default_factory=dict, description="only the trials at these levels, e.g. {display: "
-                                          "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
-    between: list[str] = Field(
-        default_factory=list, description="between-participant factors: columns of the "
-                                          "participants table (participants.tsv), e.g. group")
+    where: dict[str, str | list[str]] = _where()
+    between: list[str] = _between()
     observed: list[str] = Field(default_factory=list, description="factors measured, not "
                                                                   "manipulated (η²G only)")
 
@@ -53,12 +61,8 @@ class SimpleEffectsSpec(Model):
     dv: Measure = "rate"
     within: list[str] | None = None
     method: Literal["separate", "pooled", "both"] = "both"
-    between: list[str] = Field(
-        default_factory=list, description="between-participant factors: columns of the "
-                                          "participants table (participants.tsv), e.g. group")
-    where: dict[str, str | list[str]] = Field(
-        default_factory=dict, description="only the trials at these levels, e.g. {display: "
-                                          "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
+    between: list[str] = _between()
+    where: dict[str, str | list[str]] = _where()
 
 
 #: The family-wise corrections of post-hoc comparisons (R's ``p.adjust`` names, and Šidák).
@@ -76,12 +80,8 @@ class PosthocSpec(Model):
     error: Literal["paired", "pooled"] = Field(
         "paired", description="paired: per-participant tests; pooled: the ANOVA model's "
                               "error (emmeans)")
-    where: dict[str, str | list[str]] = Field(
-        default_factory=dict, description="only the trials at these levels, e.g. {display: "
-                                          "dynamic} (seed 000's 2 x 2 of the dynamic modes)")
-    between: list[str] = Field(
-        default_factory=list, description="between-participant factors: columns of the "
-                                          "participants table (participants.tsv), e.g. group")
+    where: dict[str, str | list[str]] = _where()
+    between: list[str] = _between()
 
 
 class TableSpec(Model):

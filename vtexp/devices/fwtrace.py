@@ -398,36 +398,37 @@ def host_driven(path: str | Path) -> list[tuple[int, object]]:
 
     state: dict[int, tuple] = {}
     out = []
-    with open(path, encoding="utf-8") as f:
-        for line in f:
-            try:
-                d = json.loads(line)
-            except ValueError:
-                continue
-            if d.get("off"):
-                state.clear()
-                continue
-            for i, a, fr, w in d.get("set", []):
-                if a and state.get(i) != (a, fr, w):
-                    out.append((i, Level(a) if fr == 0 and w == 0 else WireTrain(a, fr, w)))
-                state[i] = (a, fr, w) if a else None
+    for d in _host_records(path):
+        if d.get("off"):
+            state.clear()
+            continue
+        for i, a, fr, w in d.get("set", []):
+            if a and state.get(i) != (a, fr, w):
+                out.append((i, Level(a) if fr == 0 and w == 0 else WireTrain(a, fr, w)))
+            state[i] = (a, fr, w) if a else None
     return out
 
 
 def host_all_off(path: str | Path) -> bool:
     """vtexp-fw-host's outputs are all off at the end of its record."""
     state: dict[int, int] = {}
+    for d in _host_records(path):
+        if d.get("off"):
+            state.clear()
+        for i, a, _, _ in d.get("set", []):
+            state[i] = a
+    return not any(state.values())
+
+
+def _host_records(path: str | Path):
+    """vtexp-fw-host's record, one JSON object per line (a line cut short by a killed
+    process is skipped)."""
     with open(path, encoding="utf-8") as f:
         for line in f:
             try:
-                d = json.loads(line)
+                yield json.loads(line)
             except ValueError:
                 continue
-            if d.get("off"):
-                state.clear()
-            for i, a, _, _ in d.get("set", []):
-                state[i] = a
-    return not any(state.values())
 
 
 def all_off_at_end(trace: Trace, n_actuators: int) -> bool:
