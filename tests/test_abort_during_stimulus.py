@@ -28,6 +28,9 @@ from vtexp.model import DeviceProfile, Pulse, Schedule
 from vtexp.responders import Response
 from vtexp.session import SessionOptions, run_session
 
+# How soon everything is off after a stop, in real time: real time is its subject.
+pytestmark = pytest.mark.realtime
+
 
 @pytest.fixture(params=["sim", "emulator", "emulator-host-timing", "serial-pty"])
 def backend(request):

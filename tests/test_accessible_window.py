@@ -41,6 +41,9 @@ OUT = ROOT / "test-output"
 STUDIES = ["duration_interval_grid", "letters", "six_mode_ball", "whirlpool",
            "circle_vs_rectangle"]
 
+# A real PsychoPy window on Xvfb, answered with real key presses: real time is its subject.
+pytestmark = pytest.mark.realtime
+
 
 @pytest.fixture(scope="module", autouse=True)
 def display(xvfb, tmp_path_factory):

@@ -83,6 +83,7 @@ def run(lx, tmp_path, device, *, answer_s=0.8, **kw):
                        SessionOptions(participant="01", data_dir=tmp_path / "data", **kw))
 
 
+@pytest.mark.realtime          # a live trial plays on its thread while the answer takes real time
 def test_a_camera_session_end_to_end_on_the_emulator(tmp_path, clip):
     lx = load_experiment(experiment(tmp_path, clip))
     conds = compile_conditions(lx, VEST)
@@ -120,6 +121,7 @@ def test_a_camera_session_end_to_end_on_the_emulator(tmp_path, clip):
     assert "stim_file" in sidecar
 
 
+@pytest.mark.realtime          # a live trial plays on its thread while the answer takes real time
 def test_the_experimenter_is_asked_to_place_the_named_object(tmp_path, clip):
     lx = load_experiment(experiment(tmp_path, clip, card=""))
     asked = []
@@ -139,6 +141,7 @@ def test_without_anyone_to_ask_the_session_does_not_start(tmp_path, clip):
     assert not (tmp_path / "data").exists()
 
 
+@pytest.mark.realtime          # a live trial plays on its thread while the answer takes real time
 def test_a_camera_session_resumes_and_never_overwrites_a_frame(tmp_path, clip):
     lx = load_experiment(experiment(tmp_path, clip))
     with open_device("sim", VEST) as dev:
@@ -155,6 +158,7 @@ def test_a_camera_session_resumes_and_never_overwrites_a_frame(tmp_path, clip):
     assert (d / "stim" / "trial-003.png").read_bytes() == b"left by a trial cut short"
 
 
+@pytest.mark.realtime          # a live trial plays on its thread while the answer takes real time
 def test_vtexp_run_with_a_video_standing_in_for_the_camera(tmp_path, clip):
     path = experiment(tmp_path, clip)
     r = run_cli("run", str(path), "-p", "07", "--responder", "scripted:correct",

@@ -1,12 +1,12 @@
 """DeviceBase.stream: a live stream of output frames on the sim and on the emulated
-firmware over a real pty, held to the profile's limits (safety.StreamGuard)."""
+firmware (its bytes on a loopback line), held to the profile's limits (safety.StreamGuard),
+on a virtual clock: seconds of streaming take a fraction of one."""
 
 from __future__ import annotations
 
-import time
-
 import pytest
 
+from vtexp.clock import VirtualClock
 from vtexp.devices import open_device
 from vtexp.model import DeviceProfile, PulseTrain
 from vtexp.safety import check_schedule, outputs_schedule
@@ -45,14 +45,15 @@ def test_a_pin_held_on_by_a_stream_is_cut_and_rests_on_the_device(spec):
     """1.5 s of frames every 10 ms asking the same four pins to stay on: the device's own
     record of what it drove never breaks a limit, and the degradations are reported."""
     kinds = set()
-    with open_device(spec, SMA) as dev:
+    clock = VirtualClock()
+    with open_device(spec, SMA, clock=clock) as dev:
         margin = dev._stream_margin()
-        t_end = time.monotonic() + 1.5
-        while time.monotonic() < t_end:
+        t_end = clock.now() + 1.5
+        while clock.now() < t_end:
             rep = dev.stream({(1, 1): TRAIN, (1, 2): TRAIN, (2, 1): TRAIN, (2, 2): TRAIN})
             kinds |= {d.kind for d in rep.degradations}
             wait = min(0.01, dev.stream_deadline_s() or 0.01)
-            time.sleep(wait)
+            clock.sleep(wait)
         dev.all_off()
         changes = sim_changes(dev) if spec == "sim" else emulator_changes(dev, SMA)
         if spec == "emulator":
@@ -72,9 +73,10 @@ def test_a_stalled_host_is_switched_off_by_the_devices_watchdog_before_any_limit
     max on-time; the next frame says what happened."""
     from vtexp.errors import DeviceError
 
-    with open_device("emulator", SMA) as dev:
+    clock = VirtualClock()
+    with open_device("emulator", SMA, clock=clock) as dev:
         dev.stream({(2, 2): TRAIN})
-        time.sleep(0.6)                                  # stalled: no frame, no check-in
+        clock.sleep(0.6)                                 # stalled: no frame, no check-in
         assert dev.emulator.all_outputs_off()
         with pytest.raises(DeviceError):
             dev.stream({(2, 2): TRAIN})
@@ -82,9 +84,10 @@ def test_a_stalled_host_is_switched_off_by_the_devices_watchdog_before_any_limit
     on = [t for t, k, d in history if d is not None]
     off = [t for t, k, d in history if d is None]
     assert off[0] - on[0] <= dev.stream_watchdog_ms() + dev.stream_checkin_ms + 20
-    with open_device("sim", SMA) as sim:
+    clock = VirtualClock()
+    with open_device("sim", SMA, clock=clock) as sim:
         sim.stream({(2, 2): TRAIN})
-        time.sleep(0.3)
+        clock.sleep(0.3)
         with pytest.raises(DeviceError, match="watchdog"):
             sim.stream({(2, 2): TRAIN})
         wd = [e for e in sim.history if e.kind == "watchdog"]
@@ -107,7 +110,8 @@ def test_a_play_after_a_stream_waits_for_the_pins_to_cool():
 
 def test_a_serial_stream_sends_only_the_changes_and_reports_the_device_time():
     sent = []
-    with open_device("emulator", PAD, trace=lambda d, m: sent.append((d, m))) as dev:
+    with open_device("emulator", PAD, trace=lambda d, m: sent.append((d, m)),
+                     clock=VirtualClock()) as dev:
         dev.stream({(r, 0): 3 for r in range(20)})
         sent.clear()
         rep = dev.stream({(r, 0): 3 for r in range(19)} | {(5, 5): 2})

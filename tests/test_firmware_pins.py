@@ -34,6 +34,10 @@ PAD = DeviceProfile.load("pad_20x20")
 SMA = DeviceProfile.load("sma_5x5")
 TICK = 16_000                 # cycles per 1 ms PWM tick
 
+# The .elf in simavr paced to the wall clock, as the chip on a bench: real time is its
+# subject (the study runs in lockstep instead: tests/test_firmware_study.py).
+pytestmark = pytest.mark.realtime
+
 
 def link(sim: AvrSimulator, heartbeat_ms: int = 1000) -> str:
     """The simulator's port as ``vtexp device emulate --firmware avr`` suggests it: on a

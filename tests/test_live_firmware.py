@@ -30,8 +30,9 @@ SMA = DeviceProfile.load("sma_5x5")
 TICK_US = 100.0          # the firmware's output tick
 
 # The chip is served by `vtexp device emulate` in a process of its own, as a device is
-# apart from the host, and stopped with Ctrl-C; `vtexp live` runs in the test process.
-pytestmark = pytest.mark.process
+# apart from the host, paced to the wall clock, and stopped with Ctrl-C; `vtexp live` runs
+# in the test process.
+pytestmark = [pytest.mark.process, pytest.mark.realtime]
 
 
 @pytest.fixture(scope="module")

@@ -28,6 +28,9 @@ from vtexp.live.synthetic import write_video  # noqa: E402
 
 SHOTS = ROOT / "test-output" / "live"
 
+# The experimenter's preview, a real PsychoPy window on Xvfb: real time is its subject.
+pytestmark = pytest.mark.realtime
+
 
 @pytest.fixture(scope="module")
 def display(xvfb):

@@ -69,6 +69,7 @@ def _pull_all(inlet, until: str, timeout_s: float = 20.0) -> list[tuple[dict, fl
     return got
 
 
+@pytest.mark.realtime          # LSL stamps on the computer's clock, as a recorder sees them
 @pytest.mark.parametrize("device_spec", ["emulator", "sim:realtime"])
 def test_every_onset_reaches_an_lsl_inlet_stamped_with_the_device_onset(tmp_path, device_spec):
     import pylsl

@@ -228,6 +228,7 @@ def test_a_lost_device_is_reported_even_if_the_first_call_is_all_off(emu, clock)
     dev.close()
 
 
+@pytest.mark.realtime          # a real process and a real pty
 def test_host_killed_mid_trial_device_turns_off_by_itself(pty_emu):
     """The host process dies (SIGKILL: no all-off, no goodbye) during a play."""
     emu = pty_emu
@@ -261,6 +262,7 @@ def test_host_killed_mid_trial_device_turns_off_by_itself(pty_emu):
 
 
 
+@pytest.mark.realtime          # a real process and a real pty
 def test_a_host_starved_of_the_cpu_is_no_pulled_cable(pty_emu):
     """The host process stopped for 400 ms (SIGSTOP: a loaded lab PC, a swapping disk):
     more than the heartbeat period, less than the watchdog it asked for. Nothing was sent
@@ -335,6 +337,7 @@ def stalled_host(emu, spec: str, duration_ms: int, stop_after_s: float) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
+@pytest.mark.realtime          # a real process and a real pty
 def test_a_session_the_watchdog_ended_between_plays_is_started_again(pty_emu):
     """The host stopped 500 ms while idle, longer than its 200 ms watchdog: the device
     turned everything off (it was off) and ended the session; the next play says HELLO
@@ -346,6 +349,7 @@ def test_a_session_the_watchdog_ended_between_plays_is_started_again(pty_emu):
     assert sum(1 for a in emu.actuations() if not a.setting.is_off) == 2   # both plays, once
 
 
+@pytest.mark.realtime          # a real process and a real pty
 def test_a_play_the_watchdog_cut_short_says_why(pty_emu):
     """Stopped 500 ms in the middle of a 1 s pulse: the device switched it off after its
     200 ms watchdog; the play fails with what happened and what to change."""

@@ -36,6 +36,10 @@ from vtexp.session import SessionOptions, run_session   # noqa: E402
 
 SCREENS = ROOT / "test-output" / "screens"
 
+# A real PsychoPy window on Xvfb, answered with real key presses and clicks: real time is
+# its subject.
+pytestmark = pytest.mark.realtime
+
 
 @pytest.fixture(scope="module", autouse=True)
 def _display(xvfb):
