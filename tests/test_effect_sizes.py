@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from scipy import stats
 
 from vtexp.analysis.anova import MissingCellsWarning, rm_anova
 from vtexp.analysis.effect_sizes import dz_ci, eta2p_ci, noncentrality_limits_f
@@ -82,6 +83,22 @@ def test_undefined_f_has_no_interval():
     assert eta2p_interval(float("inf"), 1, 10) == "90% CI n/a (no error variance)"
     assert eta2p_interval(float("nan"), 1, 10) == "90% CI n/a (F is not defined)"
     assert eta2p_interval(0.01, 2, 20) == "90% CI [0, 0]"
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5, 10])
+def test_dz_interval_of_a_small_pilot_with_a_large_effect(n):
+    """Three participants, a large effect: the interval's search reached scipy's NaN tail
+    of the noncentral t (``nct.cdf(-7, 2, 10)``) and `vtexp analyze` crashed. A negative
+    effect's interval is the positive one's mirror; each limit leaves α/2 in its tail."""
+    from vtexp.analysis.effect_sizes import noncentrality_limits_t
+    for dz in (2.0, 4.0, 4.04, 8.0, 20.0):
+        lo, hi = dz_ci(dz, n)
+        assert np.isfinite(lo) and np.isfinite(hi) and lo < dz < hi, (dz, n, lo, hi)
+        assert dz_ci(-dz, n) == pytest.approx((-hi, -lo), rel=1e-9)
+        t, df = dz * np.sqrt(n), n - 1.0
+        d_lo, d_hi = noncentrality_limits_t(-t, df)
+        assert stats.nct.cdf(-t, df, d_lo) == pytest.approx(0.975, abs=1e-6)
+        assert stats.nct.cdf(-t, df, d_hi) == pytest.approx(0.025, abs=1e-6)
 
 
 @pytest.mark.parametrize("case", EXPECTED["dz"], ids=lambda c: f"dz{c['dz']}n{c['n']}")

@@ -122,13 +122,22 @@ def noncentrality_limits_t(t: float, df: float, level: float = DZ_CI_LEVEL
 
     P(T ≤ t | δ) is decreasing in δ; the lower limit solves it = 1 − α/2 and the
     upper = α/2. NaN for a non-finite t or df.
+
+    scipy's noncentral t gives NaN far in its tails when t and δ have opposite signs
+    (``nct.cdf(-7, 2, 10)``: a pilot of three participants with a large effect takes
+    the search there). With t and δ of opposite signs the probability is within
+    P(Z > |δ|) of 0 (δ above t) or 1 (δ below t), and scipy's NaN starts at |δ| ≥ 6
+    (under 1e-9), so those are the values used.
     """
     if not (np.isfinite(t) and np.isfinite(df)) or df <= 0:
         return math.nan, math.nan
     alpha = 1.0 - level
 
     def cdf(delta: float) -> float:
-        return float(stats.nct.cdf(t, df, delta))
+        p = float(stats.nct.cdf(t, df, delta))
+        if math.isnan(p):
+            return 0.0 if delta > t else 1.0
+        return p
 
     def root(target: float) -> float:
         # bracket around t: the quantile moves about one unit per unit of δ
