@@ -191,6 +191,24 @@ def test_stats_cli_errors_name_the_file_and_column(cli, tmp_path):
     assert r.returncode == 0 and len(json.loads(r.stdout)["rows"]) == 2
 
 
+def test_stats_reads_what_spreadsheets_write_and_refuses_an_empty_file(cli, tmp_path):
+    from conftest import ROOT
+    f = ROOT / "tests" / "data" / "grid_3x4.csv"
+    args = ["--dv", "score", "--within", "shape", "soa", "--subject", "participant", "--json"]
+    want = cli("stats", "rm-anova", str(f), *args)
+    assert want.returncode == 0, want.stderr
+    excel = tmp_path / "excel.csv"            # a byte-order mark and CRLF line ends
+    excel.write_bytes(b"\xef\xbb\xbf" + f.read_bytes().replace(b"\r\n", b"\n")
+                      .replace(b"\n", b"\r\n"))
+    got = cli("stats", "rm-anova", str(excel), *args)
+    assert got.returncode == 0, got.stderr
+    assert json.loads(got.stdout)["effects"] == json.loads(want.stdout)["effects"]
+    for name, text in (("empty.csv", b""), ("blank.csv", b"\n\n"), ("one.csv", b"a\n1\n")):
+        (tmp_path / name).write_bytes(text)
+        r = cli("stats", "rm-anova", str(tmp_path / name), *args)
+        assert r.returncode == 2 and name in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
 def test_reanalysis_script_shows_where_the_papers_df_come_from(data, tmp_path):
     import subprocess
     import sys

@@ -19,6 +19,7 @@ Registered in ``vtexp.cli.build_parser`` with :func:`register`.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import math
 import sys
@@ -36,10 +37,15 @@ def read_table(path: str):
     if not p.is_file():
         raise InputError("no such file", path=str(p))
     sep = "\t" if p.suffix.lower() in (".tsv", ".tab") else None
+    if p.stat().st_size == 0:
+        raise InputError("the file is empty; expected a tidy CSV or TSV with a header row",
+                         path=str(p))
     try:
+        # utf-8-sig: a byte-order mark (what spreadsheet programs write) is not part of
+        # the first column's name
         df = pd.read_csv(p, sep=sep, engine="python", dtype=str, keep_default_na=False,
-                         na_values=["", "NA", "n/a", "NaN"])
-    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as e:
+                         na_values=["", "NA", "n/a", "NaN"], encoding="utf-8-sig")
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError, csv.Error) as e:
         raise InputError(f"cannot read as a table (CSV or TSV): {e}", path=str(p)) from None
     if df.shape[1] < 2:
         raise InputError("found fewer than 2 columns; expected a tidy CSV or TSV with a header "
