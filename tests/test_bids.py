@@ -223,3 +223,34 @@ def test_pooling_without_duckdb_says_which_extra(labs, tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "duckdb", None)    # vtexp imports it when it pools
     r = run_cli("analyze", "--pool", str(labs / "*"), timeout=120)
     assert r.returncode == 2 and "pip install 'vtexp[pool]'" in r.stderr, r.stderr
+
+
+def test_participants_started_at_once_in_a_new_data_folder_make_one_dataset(tmp_path):
+    """Sessions of several participants starting at the same moment in a data folder that
+    does not exist yet: each makes the dataset if it is not there, and none fails (they
+    staged dataset_description.json under one temporary name: "cannot write ...: No such
+    file or directory" for 2 of 12 pairs of processes)."""
+    import threading
+    from vtexp import bids
+
+    failures = []
+    for k in range(20):
+        root = tmp_path / f"data{k}" / "mini"
+        start = threading.Barrier(6)
+
+        def make():
+            start.wait()
+            try:
+                bids.ensure_dataset(root, "mini", "A minimal experiment")
+            except Exception as e:            # noqa: BLE001 - what failed is the finding
+                failures.append(repr(e))
+        threads = [threading.Thread(target=make) for _ in range(6)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert json.loads((root / "dataset_description.json").read_text())["Name"] == \
+            "A minimal experiment"
+        assert (root / "README.md").read_text().startswith("# A minimal experiment")
+        assert not list(root.glob(".*.tmp"))
+    assert failures == []

@@ -96,15 +96,18 @@ def readme(name: str, title: str, reference: str) -> str:
 
 
 def ensure_dataset(root: Path | str, name: str, title: str, reference: str = "") -> None:
-    """Make ``root`` a BIDS dataset if it is not one yet (files already there are kept)."""
+    """Make ``root`` a BIDS dataset if it is not one yet (files already there are kept).
+    Under the dataset's lock: participants started at once in a new data folder would
+    otherwise stage the same files under the same temporary names."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
-    desc = root / "dataset_description.json"
-    if not desc.exists():
-        write_json_atomic(desc, dataset_description(name, title))
-    if not any((root / f).exists() for f in ("README", "README.md", "README.rst",
-                                             "README.txt")):
-        write_text_atomic(root / "README.md", readme(name, title, reference))
+    with _dataset_lock(root):
+        desc = root / "dataset_description.json"
+        if not desc.exists():
+            write_json_atomic(desc, dataset_description(name, title))
+        if not any((root / f).exists() for f in ("README", "README.md", "README.rst",
+                                                 "README.txt")):
+            write_text_atomic(root / "README.md", readme(name, title, reference))
 
 
 def ensure_derivative(out: Path | str, source_name: str) -> None:
