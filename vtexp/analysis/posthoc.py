@@ -30,6 +30,7 @@ from .spec import PADJUST_METHODS
 __all__ = ["p_adjust", "pairwise_tests", "trend_contrasts", "polynomial_contrasts",
            "PADJUST_METHODS"]
 
+
 def p_adjust(p, method: str = "holm") -> np.ndarray:
     """Adjusted p values, as R's ``p.adjust`` (and emmeans for Šidák).
 
