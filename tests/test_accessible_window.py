@@ -295,9 +295,18 @@ def _lit_pixels(r, lb) -> np.ndarray:
     gl.glReadPixels(0, 0, w, h, gl.GL_RGBA, gl.GL_UNSIGNED_BYTE,
                     px.ctypes.data_as(ctypes.POINTER(gl.GLubyte)))
     r.win.clearBuffer()
-    rgb = px[::-1, :, :3].astype(np.uint32)
-    grey = (rgb[..., 0] * 19595 + rgb[..., 1] * 38470 + rgb[..., 2] * 7471 + 0x8000) >> 16
-    return grey > 60
+    px = px[::-1]
+    # A pixel's grey level is at most its brightest channel: only where that is above 60
+    # is the exact level worked out (the label's few rows and columns, not the screen).
+    lit = np.zeros((h, w), bool)
+    top = np.maximum(np.maximum(px[..., 0], px[..., 1]), px[..., 2]) > 60
+    rows, cols = np.flatnonzero(top.any(axis=1)), np.flatnonzero(top.any(axis=0))
+    if rows.size:
+        y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+        rgb = px[y0:y1, x0:x1, :3].astype(np.uint32)
+        lit[y0:y1, x0:x1] = (rgb[..., 0] * 19595 + rgb[..., 1] * 38470 + rgb[..., 2] * 7471
+                             + 0x8000) >> 16 > 60
+    return lit
 
 
 @pytest.mark.parametrize("size", [(1280, 800), (1920, 1080)])
