@@ -61,7 +61,7 @@ class CapturedAudio:
     """Stands in for the sound card: records what would be played, and when. A clip
     "plays" for its file's length divided by ``speed`` (the tests go faster)."""
 
-    speed = 16.0
+    speed = 64.0
 
     def __init__(self):
         self.log: list[tuple[str, Path | None, float]] = []
