@@ -110,6 +110,10 @@ def test_a_stale_lock_of_a_killed_run_is_recognised_and_the_session_marked(tmp_p
     assert f"pid {proc.pid} on" in r.stdout and "marked interrupted" in r.stdout
     meta = json.loads(rec.read_text())
     assert meta["status"] == "interrupted" and f"pid {proc.pid}" in meta["reason"]
+    # What the log holds, not the 0 of a record no run closed (one row per trial here).
+    held = len(beh.read_text().splitlines()) - 1
+    assert held >= 1 and meta["n_trials_logged"] == held
+    assert f"did not close ({held} of 8 trials logged)" in r.stdout
     # The printed command continues it, from another folder, on the device it ran on.
     cmd = printed_command(r.stdout)
     assert cmd[cmd.index("--device") + 1] == "sim:realtime"

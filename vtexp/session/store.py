@@ -103,6 +103,9 @@ def _mark_if_dead(sj: Path, clock: Clock) -> dict | None:
                   + (f" (pid {who['pid']} on {who.get('host', '?')})" if who.get("pid") else "")
                   + " ended without closing it: killed, crashed or the power failed; "
                   f"found at {iso(clock)[:19].replace('T', ' ')}")
+        logged = _trials_in_log(d, meta)
+        if logged is not None:                # the record counts only what a run closed
+            meta["n_trials_logged"] = logged
         meta.update(status="interrupted", reason=reason)
         write_json_atomic(sj, meta)
         return {"participant": meta.get("participant"), "session": meta.get("session"),
@@ -110,6 +113,29 @@ def _mark_if_dead(sj: Path, clock: Clock) -> dict | None:
                 "dir": d, "record": sj, "reason": reason}
     finally:
         lock.release()
+
+
+def _trials_in_log(record_dir: Path, meta: dict) -> int | None:
+    """The whole trials the trial log of a session holds, counted as a resume counts them
+    (complete rows, one per question asked; a trial cut short between its questions is not
+    one); None if the log cannot be found or read."""
+    exp = meta.get("experiment_loaded")
+    if not isinstance(exp, dict):
+        return None
+    asked = 1 if exp.get("question") is not None else len(exp.get("questions") or [])
+    ses, sub = record_dir.name, record_dir.parent.name
+    if record_dir.parents[1].parts[-2:] == bids.SOURCE.parts:
+        beh_dir = record_dir.parents[3] / sub / ses / "beh"
+    else:                                   # the layout before BIDS: the log beside it
+        beh_dir = record_dir
+    logs = sorted(beh_dir.glob("*_beh.tsv"))
+    if not logs or asked < 1:
+        return None
+    try:
+        lines = logs[0].read_bytes().split(b"\n")[1:-1]   # after the header, whole lines
+    except OSError:
+        return None
+    return sum(1 for ln in lines if ln.strip()) // asked
 
 
 def mark_dead_sessions(data, experiment: str, clock: Clock = REAL) -> list[dict]:
