@@ -127,6 +127,30 @@ def test_files_that_are_not_vtexp_logs_are_refused(cli, tmp_path, make, needle):
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.parametrize("version, says", [
+    (999, "format_version 999, newer than this vtexp reads (up to 2)"),
+    ("2", "format_version is '2', not a version number"),
+    (None, "format_version is None, not a version number"),
+])
+def test_a_session_record_of_a_newer_or_unknown_format_is_refused(cli, data, tmp_path,
+                                                                   version, says):
+    copy = tmp_path / "copy"
+    shutil.copytree(data, copy)
+    rec = session_record(copy / "sub-02" / "ses-1")
+    meta = json.loads(rec.read_text())
+    meta["format_version"] = version
+    rec.write_text(json.dumps(meta))
+    r = cli("analyze", str(copy), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and says in r.stderr and str(rec) in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_analysis_reads_the_format_sessions_write():
+    from vtexp.analysis.load import READS_FORMAT_VERSION
+    from vtexp.session import FORMAT_VERSION
+    assert READS_FORMAT_VERSION == FORMAT_VERSION
+
+
 def test_a_trial_log_given_alone_points_to_its_session_folder(cli, data):
     beh = next((data / "sub-01" / "ses-1" / "beh").glob("*_beh.tsv"))
     r = cli("analyze", str(beh))

@@ -84,6 +84,10 @@ class SessionData:
 
 #: Where vtexp keeps its session records in a BIDS dataset (vtexp.bids.SOURCE).
 SOURCE_PARTS = ("sourcedata", "vtexp")
+#: The newest session record this reads: vtexp.session.files.FORMAT_VERSION (kept equal by
+#: a test; importing the session package here would import the engine).
+READS_FORMAT_VERSION = 2
+
 _SESSION_FILES = ("_beh.tsv", "_events.tsv", "_beh.json", "_events.json")
 
 
@@ -165,6 +169,14 @@ def read_record(path: Path | str) -> SessionData:
     if not isinstance(meta, dict) or meta.get("format") != "vtexp-session":
         raise InputError("not a vtexp session record (no 'format: vtexp-session')",
                          path=str(path))
+    version = meta.get("format_version", 1)
+    if type(version) is not int or version < 1:
+        raise InputError(f"the session record's format_version is {version!r}, not a version "
+                         "number (edited by hand?)", path=str(path))
+    if version > READS_FORMAT_VERSION:
+        raise InputError(f"the session record is of format_version {version}, newer than this "
+                         f"vtexp reads (up to {READS_FORMAT_VERSION}); analyse it with the "
+                         "vtexp that wrote it, or a newer one", path=str(path))
     bids = meta.get("layout") == "bids"
     # The record names files from the dataset's root (BIDS) or from its own folder (before).
     base = path.parents[4] if bids else path.parent
