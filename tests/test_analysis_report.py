@@ -233,6 +233,21 @@ def test_stats_reads_what_spreadsheets_write_and_refuses_an_empty_file(cli, tmp_
         assert r.returncode == 2 and name in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
+def test_stats_refuses_an_infinite_value_naming_it(cli, tmp_path):
+    # every F was "n/a" with the reason "the measure does not vary across these cells"
+    from conftest import ROOT
+    rows = (ROOT / "tests" / "data" / "grid_3x4.csv").read_text().splitlines()
+    head = rows[0].split(",")
+    cells = rows[5].split(",")
+    cells[head.index("score")] = "inf"
+    f = tmp_path / "inf.csv"
+    f.write_text("\n".join(rows[:5] + [",".join(cells)] + rows[6:]) + "\n")
+    r = cli("stats", "rm-anova", str(f), "--dv", "score", "--within", "shape", "soa",
+            "--subject", "participant")
+    assert r.returncode == 2 and "column 'score' holds an infinite value 'inf' (row 4)" in \
+        r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
 def test_reanalysis_script_shows_where_the_papers_df_come_from(data, tmp_path):
     import subprocess
     import sys

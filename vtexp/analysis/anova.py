@@ -178,6 +178,11 @@ def within_design(data: pd.DataFrame, dv: str, within: list[str] | str, subject:
         i = bad.idxmax()
         raise InputError(f"column {dv!r} holds a non-numeric value {data[dv][i]!r} "
                          f"(row {i})")
+    infinite = np.isinf(y.to_numpy(dtype=float))
+    if infinite.any():
+        i = y.index[int(np.argmax(infinite))]
+        raise InputError(f"column {dv!r} holds an infinite value {data[dv][i]!r} (row {i}); "
+                         "a mean with it is not a number")
     keep = y.notna()
     for c in [subject, *within]:
         keep &= data[c].notna()
