@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 from PIL import Image
@@ -67,6 +68,31 @@ def test_encode_errors_are_clear(cli, tmp_path):
             "--png", str(tmp_path / "b.png"))
     assert r.returncode == 0 and "no shape found" in r.stderr
     assert "0 points" in r.stdout
+
+
+def test_images_no_one_can_read_are_one_message(cli, tmp_path):
+    """A PNG that declares more pixels than OpenCV reads (cv2.error), a file name over the
+    system's limit (OSError), a file that cannot be read: one message each, naming it."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(
+            ">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+    huge = tmp_path / "huge.png"
+    huge.write_bytes(b"\x89PNG\r\n\x1a\n"
+                     + chunk(b"IHDR", struct.pack(">IIBBBBB", 40000, 40000, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(b"\0" * 10)) + chunk(b"IEND", b""))
+    locked = tmp_path / "locked.png"
+    locked.write_bytes(huge.read_bytes())
+    locked.chmod(0)
+    cases = [(huge, "more pixels than OpenCV reads"),
+             (tmp_path / ("x" * 300 + ".png"), "cannot read the image file: File name too long")]
+    if os.geteuid() != 0:                   # root reads a file whatever its mode
+        cases.append((locked, "cannot read the image file: Permission denied"))
+    for path, says in cases:
+        r = cli("encode", str(path), "--pipeline", "edge-trace", "--device", "vest_6x8")
+        assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
 def test_camera_absent_is_a_clear_error(cli):

@@ -46,11 +46,23 @@ def render(generator: str, params: dict, rows: int | None = None,
 def read_image(path: str | Path) -> np.ndarray:
     """Read an image file (PNG, JPEG, ...; 8 or 16 bit; gray or colour) as 8-bit gray."""
     p = Path(path)
-    if not p.is_file():
-        raise InputError("image file not found", path=str(p))
+    try:
+        if not p.is_file():
+            raise InputError("image file not found", path=str(p))
+        data = np.fromfile(str(p), dtype=np.uint8)
+    except OSError as e:                    # a name too long, no permission to read, ...
+        raise InputError(f"cannot read the image file: {e.strerror or e}",
+                         path=str(p)[:300]) from None
     cv = cv2()
-    data = np.fromfile(str(p), dtype=np.uint8)
-    img = cv.imdecode(data, cv.IMREAD_UNCHANGED) if data.size else None
+    try:
+        img = cv.imdecode(data, cv.IMREAD_UNCHANGED) if data.size else None
+    except cv.error as e:
+        if "CV_IO_MAX_IMAGE_PIXELS" in str(e):
+            raise InputError("the image has more pixels than OpenCV reads (2^30, set by the "
+                             "OPENCV_IO_MAX_IMAGE_PIXELS environment variable); scale it "
+                             "down first", path=str(p)) from None
+        raise InputError(f"not a readable image: {str(e).strip().splitlines()[-1]}",
+                         path=str(p)) from None
     if img is None:
         raise InputError("not a readable image (expected PNG, JPEG, BMP or TIFF)", path=str(p))
     if img.ndim == 3:
