@@ -175,6 +175,39 @@ def test_cli_validate_reports_one_clear_message(tmp_path, minimal_yaml, cli, mut
     assert len(lines) == 1 and needle in lines[0] and str(f) in lines[0]
 
 
+BOMB = "".join(f"{a}: &{a} [{', '.join([f'*{b}'] * 10)}]\n"
+               for b, a in zip("abcdefgh", "bcdefghi"))
+
+
+@pytest.mark.parametrize("make, needle, line", [
+    (lambda t: t + "deep: " + "[" * 5000 + "]" * 5000 + "\n", "nested too deeply", False),
+    (lambda t: t + "deep: " + "[" * 100 + "]" * 100 + "\n", "nested more than 64 levels",
+     True),
+    (lambda t: t + "a: &a [x, x, x, x, x, x, x, x, x, x]\n" + BOMB,
+     "more than 100,000 values once its aliases", False),
+    (lambda t: t.replace("title: A minimal", "title: A \x07minimal"),
+     "a character YAML does not allow (U+0007", True),
+    (lambda t: t + "# " + "x" * 1_100_000 + "\n", "over 1,000,000 bytes long", False),
+])
+def test_damaged_experiment_files_are_one_message(tmp_path, minimal_yaml, cli, make, needle,
+                                                  line):
+    """Deep nesting (RecursionError), aliases that repeat aliases (MemoryError after half a
+    minute), a control character (ReaderError) and a file too long to be an experiment."""
+    f = write_experiment(tmp_path, make(minimal_yaml))
+    r = cli("validate", str(f), timeout=60)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and str(f) in lines[0], lines
+    assert (f"{f}:" in lines[0] and lines[0].split(str(f) + ":")[1][:1].isdigit()) == line
+
+
+def test_an_experiment_path_that_is_a_link_to_an_endless_device_is_refused(tmp_path, cli):
+    link = tmp_path / "exp.yaml"
+    link.symlink_to("/dev/zero")
+    r = cli("validate", str(link), timeout=60)
+    assert r.returncode == 2 and "over 1,000,000 bytes long" in r.stderr, r.stderr
+
+
 def test_cli_run_reports_bad_input_without_traceback(tmp_path, minimal_yaml, cli):
     f = write_experiment(tmp_path, minimal_yaml.replace("repetitions: 2", "repetitions: -1"))
     r = cli("run", str(f), "-p", "01", "--responder", "scripted:correct",

@@ -78,13 +78,55 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+#: Limits checked before a document is built: an experiment file is a few kilobytes and a
+#: few levels deep; past these it is a mistake or an attack (a link to /dev/zero, aliases
+#: that repeat aliases), refused before it takes the memory or the time.
+MAX_BYTES = 1_000_000
+MAX_DEPTH = 64
+MAX_VALUES = 100_000
+
+
+def _check_extent(node: yaml.Node, path: str) -> None:
+    """Refuse a document nested deeper than MAX_DEPTH or of more than MAX_VALUES values
+    with its aliases expanded (walked without recursion, stopping at the limit)."""
+    stack, count = [(node, 1)], 0
+    while stack:
+        nd, depth = stack.pop()
+        count += 1
+        if depth > MAX_DEPTH:
+            raise InputError(f"nested more than {MAX_DEPTH} levels deep; an experiment is a "
+                             "few levels deep", path=path, line=nd.start_mark.line + 1)
+        if count > MAX_VALUES:
+            raise InputError(f"holds more than {MAX_VALUES:,} values once its aliases (*name) "
+                             "are expanded; an experiment holds far fewer", path=path)
+        if isinstance(nd, yaml.MappingNode):
+            stack.extend((x, depth + 1) for pair in nd.value for x in pair)
+        elif isinstance(nd, yaml.SequenceNode):
+            stack.extend((x, depth + 1) for x in nd.value)
+
+
 def load_yaml_text(text: str, path: str = "<string>") -> LoadedYaml:
-    loader = _UniqueKeyLoader(text)
+    if len(text) > MAX_BYTES:
+        raise InputError(f"is over {MAX_BYTES:,} characters long; an experiment file is a few "
+                         "kilobytes", path=path)
+    loader = None
     try:
+        loader = _UniqueKeyLoader(text)     # reading starts here: a character YAML refuses
         node = loader.get_single_node()
         if node is None:
             raise InputError("the file is empty; expected a YAML mapping", path=path, line=1)
+        _check_extent(node, path)
         data = loader.construct_document(node)
+    except yaml.reader.ReaderError as exc:
+        line = text.count("\n", 0, exc.position) + 1 if isinstance(exc.position, int) else None
+        ch = exc.character
+        code = ord(ch) if isinstance(ch, str) and len(ch) == 1 else ch
+        what = f"U+{code:04X}" if isinstance(code, int) else repr(ch)
+        raise InputError(f"a character YAML does not allow ({what}, {exc.reason}); remove it",
+                         path=path, line=line) from None
+    except RecursionError:
+        raise InputError("nested too deeply to read; an experiment is a few levels deep",
+                         path=path) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line = mark.line + 1 if mark is not None else None
@@ -97,7 +139,8 @@ def load_yaml_text(text: str, path: str = "<string>") -> LoadedYaml:
     except yaml.YAMLError as exc:
         raise InputError(f"YAML error: {exc}", path=path) from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
     lines: dict[KeyPath, int] = {}
     _record_lines(node, (), lines)
     return LoadedYaml(data=data, path=path, text=text, lines=lines)
@@ -106,7 +149,12 @@ def load_yaml_text(text: str, path: str = "<string>") -> LoadedYaml:
 def load_yaml(path: str | Path) -> LoadedYaml:
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        with open(p, "rb") as f:            # at most the limit: a link to /dev/zero ends
+            raw = f.read(MAX_BYTES + 1)
+        if len(raw) > MAX_BYTES:
+            raise InputError(f"is over {MAX_BYTES:,} bytes long; an experiment file is a few "
+                             "kilobytes", path=str(p))
+        text = raw.decode("utf-8")
     except FileNotFoundError:
         raise InputError("file not found", path=str(p)) from None
     except IsADirectoryError:
