@@ -165,6 +165,8 @@ def test_reserved_factor_name(tmp_path, minimal_yaml):
     (("iti_ms: 0", "itii_ms: 0"), "design.itii_ms: unknown key"),
     (("square: {generator: shape, params: {shape: square}}", "square: {file: nope.png}"),
      "stimuli.square.file"),
+    (("square: {generator: shape, params: {shape: square}}", 'square: {file: ""}'),
+     "stimuli.square.file: String should have at least 1 character"),     # was a TypeError
 ])
 def test_cli_validate_reports_one_clear_message(tmp_path, minimal_yaml, cli, mutation, needle):
     f = write_experiment(tmp_path, minimal_yaml.replace(*mutation))

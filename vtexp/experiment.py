@@ -53,11 +53,12 @@ class StimulusSpec(Model):
     taken at each trial (``vtexp.live.trial``)."""
 
     generator: str | None = Field(None, description="a name from vtexp.stimuli.GENERATORS")
-    file: str | None = Field(None, description="image path, relative to the YAML file")
+    file: Annotated[str, Field(min_length=1)] | None = Field(
+        None, description="image path, relative to the YAML file")
     params: dict[str, Any] = Field(default_factory=dict)
     camera: Annotated[int, Field(ge=0)] | None = Field(
         None, description="a camera (OpenCV index): the object placed before it is the stimulus")
-    video: str | None = Field(
+    video: Annotated[str, Field(min_length=1)] | None = Field(
         None, description="a video file standing in for a camera, relative to the YAML file")
     object: str | None = Field(
         None, description="camera: what the experimenter is asked to place (default: the "
