@@ -151,6 +151,48 @@ def test_analysis_reads_the_format_sessions_write():
     assert READS_FORMAT_VERSION == FORMAT_VERSION
 
 
+def _edit(**changes):
+    return lambda m: m.update(changes)
+
+
+@pytest.mark.parametrize("damage, says", [
+    (_edit(session="abc"), "session is 'abc', not a session number"),
+    (_edit(experiment=5), "experiment is 5, not an experiment's name"),
+    (_edit(participant=[1]), "participant is [1], not a participant id"),
+    (lambda m: m.pop("experiment_loaded"), "experiment_loaded is missing"),
+    (_edit(experiment_loaded={"name": 3}), "experiment the session ran (no title)"),
+    (lambda m: m["experiment_loaded"].update(factors="x"), "its factors are not a table"),
+    (_edit(checksums="abc"), "checksums is 'abc', not a table of file checksums"),
+    ("nested", "nested too deeply"),
+    ("digits", "Exceeds the limit (4300 digits)"),
+    ("tab", "line 4 has 19 cells where the header has 18 (a tab too many?)"),
+], ids=["session", "experiment", "participant", "no-experiment", "no-title", "factors",
+        "checksums", "nested", "digits", "tab"])
+def test_a_damaged_session_record_or_log_is_one_message(cli, data, tmp_path, damage, says):
+    """What analyze met with a traceback (ValueError, StopIteration, KeyError,
+    AttributeError, LinAlgError, RecursionError, ParserError)."""
+    copy = tmp_path / "copy"
+    shutil.copytree(data, copy)
+    rec = session_record(copy / "sub-02" / "ses-1")
+    beh = next((copy / "sub-02" / "ses-1" / "beh").glob("*_beh.tsv"))
+    if damage == "nested":
+        rec.write_text(rec.read_text().rstrip()[:-1] + ', "x": ' + "[" * 100_000
+                       + "]" * 100_000 + "}")
+    elif damage == "digits":
+        rec.write_text(rec.read_text().rstrip()[:-1] + ', "x": ' + "9" * 5000 + "}")
+    elif damage == "tab":
+        lines = beh.read_text().splitlines(keepends=True)
+        lines[3] = lines[3].rstrip("\n") + "\textra\n"
+        beh.write_text("".join(lines))
+    else:
+        meta = json.loads(rec.read_text())
+        damage(meta)
+        rec.write_text(json.dumps(meta))
+    r = cli("analyze", str(copy), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert says in r.stderr and str(beh if damage == "tab" else rec) in r.stderr, r.stderr
+
+
 def test_a_trial_log_given_alone_points_to_its_session_folder(cli, data):
     beh = next((data / "sub-01" / "ses-1" / "beh").glob("*_beh.tsv"))
     r = cli("analyze", str(beh))

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -150,6 +151,43 @@ def find_sessions(paths: list[Path | str]) -> list[Path]:
     return out
 
 
+def _check_fields(meta: dict, path: Path) -> None:
+    """The fields of a session record the analysis reads, of the kinds vtexp writes them:
+    refused naming the field otherwise (a record edited by hand, or by another program)."""
+    def bad(key: str, what: str):
+        shown = repr(meta[key])[:80] if key in meta else "missing"
+        return InputError(f"the session record's {key} is {shown}, not {what} (written by "
+                          "another program or edited by hand?)", path=str(path))
+
+    for key, what in (("experiment", "an experiment's name"),
+                      ("participant", "a participant id")):
+        if key in meta and not (isinstance(meta[key], str) and meta[key].strip()):
+            raise bad(key, what)
+    ses = meta.get("session")
+    if "session" in meta and not (type(ses) is int and ses >= 1
+                                  or isinstance(ses, str) and ses.isdigit() and int(ses) >= 1):
+        raise bad("session", "a session number")
+    if not isinstance(meta.get("files"), dict) or not all(
+            isinstance(v, str) for v in meta["files"].values()):
+        raise bad("files", "a table of the session's files")
+    if meta.get("checksums") is not None and not (isinstance(meta["checksums"], dict) and all(
+            isinstance(k, str) and isinstance(v, str) for k, v in meta["checksums"].items())):
+        raise bad("checksums", "a table of file checksums")
+    loaded = meta.get("experiment_loaded")
+    if not isinstance(loaded, dict):
+        raise bad("experiment_loaded", "the experiment the session ran")
+    if not isinstance(loaded.get("title"), str):
+        raise bad("experiment_loaded", "the experiment the session ran (no title)")
+    factors = loaded.get("factors", {})
+    if not (isinstance(factors, dict) and all(isinstance(k, str) and isinstance(f, dict)
+                                              for k, f in factors.items())):
+        raise bad("experiment_loaded", "the experiment the session ran (its factors are not "
+                  "a table of factors)")
+    if not isinstance(loaded.get("analysis") or {}, (dict, list)):
+        raise bad("experiment_loaded", "the experiment the session ran (its analysis: is not "
+                  "a table)")
+
+
 def read_record(path: Path | str) -> SessionData:
     """A session's record and what it says of its files (checksums verified); the trial
     table is left empty (:func:`read_session` and the pooled reader fill it)."""
@@ -164,8 +202,11 @@ def read_record(path: Path | str) -> SessionData:
         path = records[0]
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+    except (OSError, UnicodeDecodeError, ValueError) as e:     # ValueError: JSON, huge ints
         raise InputError(f"cannot read the session record: {e}", path=str(path)) from None
+    except RecursionError:
+        raise InputError("cannot read the session record: nested too deeply (a record is a "
+                         "few levels deep)", path=str(path)) from None
     if not isinstance(meta, dict) or meta.get("format") != "vtexp-session":
         raise InputError("not a vtexp session record (no 'format: vtexp-session')",
                          path=str(path))
@@ -177,6 +218,7 @@ def read_record(path: Path | str) -> SessionData:
         raise InputError(f"the session record is of format_version {version}, newer than this "
                          f"vtexp reads (up to {READS_FORMAT_VERSION}); analyse it with the "
                          "vtexp that wrote it, or a newer one", path=str(path))
+    _check_fields(meta, path)
     bids = meta.get("layout") == "bids"
     # The record names files from the dataset's root (BIDS) or from its own folder (before).
     base = path.parents[4] if bids else path.parent
@@ -276,8 +318,15 @@ def read_session(d: Path | str) -> SessionData:
     header = text.split("\n", 1)[0].split("\t")
     if "trial" not in header or "answer" not in header:
         raise InputError("not a vtexp trial log (no 'trial' and 'answer' columns)", path=str(beh))
-    df = pd.read_csv(io.StringIO(text), sep="\t", dtype=str, na_values=[NA],
-                     keep_default_na=False)
+    try:
+        df = pd.read_csv(io.StringIO(text), sep="\t", dtype=str, na_values=[NA],
+                         keep_default_na=False)
+    except pd.errors.ParserError as e:      # a row with more cells than the header
+        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(e))
+        what = (f"line {m[2]} has {m[3]} cells where the header has {m[1]}" if m
+                else str(e).strip())
+        raise InputError(f"not a trial log as vtexp writes it: {what} (a tab too many?)",
+                         path=str(beh)) from None
     s.trials = typed_trials(df, s)
     return s
 
