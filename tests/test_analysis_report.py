@@ -193,6 +193,29 @@ def test_a_damaged_session_record_or_log_is_one_message(cli, data, tmp_path, dam
     assert says in r.stderr and str(beh if damage == "tab" else rec) in r.stderr, r.stderr
 
 
+def test_a_pilot_of_one_finished_and_one_unfinished_session_gets_its_report(cli, tmp_path):
+    """It exited 2 ("1 participant(s) with a value in every cell ...") and wrote no report:
+    the tables, figures and report are written, and each test that cannot run is named
+    as skipped, with why."""
+    data = tmp_path / "data"
+    for p, more in (("01", []), ("02", ["--max-trials", "5"])):
+        r = cli("run", str(GRID), "-p", p, "--responder", "scripted:accuracy=0.8", "--data",
+                str(data), "--quiet", *more)
+        assert r.returncode == 0, r.stderr
+    out = tmp_path / "out"
+    r = cli("analyze", str(data / "duration_interval_grid"), "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    d = out / "duration_interval_grid"
+    assert (d / "report.html").is_file() and (d / "figure_rates.png").is_file()
+    assert (d / "rates_by_condition.csv").is_file()
+    md = (d / "report.md").read_text(encoding="utf-8")
+    reason = ("1 participant(s) with a value in every cell; a repeated-measures ANOVA needs "
+              "at least 2")
+    assert f"The ANOVA of the recognition rate: skipped ({reason})" in md
+    assert f"The paired comparisons of timing: skipped ({reason})" in md
+    assert not list(d.glob("anova_*.csv"))
+
+
 def test_a_trial_log_given_alone_points_to_its_session_folder(cli, data):
     beh = next((data / "sub-01" / "ses-1" / "beh").glob("*_beh.tsv"))
     r = cli("analyze", str(beh))

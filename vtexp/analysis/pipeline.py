@@ -375,6 +375,18 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
         caught.extend(w)
         return out
 
+    def attempt(what: str, fn, *a, **kw):
+        """``run``, or None with a note saying why the test was skipped when the data
+        cannot carry it (a pilot: too few participants with every cell, a level no one
+        reached); the tables and figures of the report are written all the same."""
+        try:
+            return run(fn, *a, **kw)
+        except InputError as e:
+            note = f"{what}: skipped ({e.message})"
+            if note not in notes:
+                notes.append(note)
+            return None
+
     if scored:
         T["rates_by_condition"] = recognition_rates(sub, factors).drop(columns="experiment")
         for f in factors:
@@ -412,8 +424,10 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
         for i, a in enumerate(spec.anova):
             within = a.within or factors
             m = participant_measures(_subset(sub, a.where), a.dv, within + a.between)
-            t = run(rm_anova, m, a.dv, within, "participant", between=a.between,
-                    observed=a.observed or None)
+            t = attempt(f"The ANOVA of the {label(a.dv, a.where)}", rm_anova, m, a.dv, within,
+                        "participant", between=a.between, observed=a.observed or None)
+            if t is None:
+                continue
             T[f"anova_{i + 1}"] = t
             res.titles[f"anova_{i + 1}"] = (
                 f"{'Mixed' if a.between else 'Repeated-measures'} ANOVA of the "
@@ -436,8 +450,11 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
             within = s.within or factors
             m = participant_measures(_subset(sub, s.where), s.dv, within + s.between)
             methods = ["separate", "pooled"] if s.method == "both" else [s.method]
-            parts = [run(simple_effects, m, s.dv, within, "participant", effect=s.effect,
-                         by=s.by, method=meth, between=s.between) for meth in methods]
+            parts = [attempt(f"The simple effects of {s.effect} at each {s.by}", simple_effects,
+                             m, s.dv, within, "participant", effect=s.effect, by=s.by,
+                             method=meth, between=s.between) for meth in methods]
+            if any(part is None for part in parts):
+                continue
             t = pd.concat(parts, ignore_index=True)
             T[f"simple_effects_{i + 1}"] = t
             res.titles[f"simple_effects_{i + 1}"] = (
@@ -456,18 +473,25 @@ def analyse_experiment(trials: pd.DataFrame, sessions: list[SessionData], experi
         for i, p in enumerate(spec.posthoc):
             within = p.within or factors
             m = participant_measures(_subset(sub, p.where), p.dv, within + p.between)
-            T[f"posthoc_{i + 1}"] = run(pairwise_tests, m, p.dv, within, "participant",
-                                        factor=p.factor, by=p.by, padjust=p.padjust,
-                                        between=p.between, error=p.error)
+            t = attempt(f"The paired comparisons of {p.factor}", pairwise_tests, m, p.dv,
+                        within, "participant", factor=p.factor, by=p.by, padjust=p.padjust,
+                        between=p.between, error=p.error)
+            if t is None:
+                continue
+            T[f"posthoc_{i + 1}"] = t
             res.titles[f"posthoc_{i + 1}"] = (
                 f"Paired comparisons of {p.factor}" + (f" at each {p.by}" if p.by else "")
                 + f": the {label(p.dv, p.where)}{rows(p.dv, p.where)}")
         for i, o in enumerate(spec.ordinal):
             m = participant_measures(_subset(sub, o.where), o.dv, [o.factor])
-            fr = run(friedman, m, o.dv, o.factor, "participant")
+            fr = attempt(f"The Friedman test of {o.factor}", friedman, m, o.dv, o.factor,
+                         "participant")
+            wx = attempt(f"The Wilcoxon comparisons of {o.factor}", wilcoxon_pairwise, m, o.dv,
+                         o.factor, "participant", padjust=o.padjust) if fr is not None else None
+            if wx is None:
+                continue
             T[f"friedman_{i + 1}"] = fr
-            T[f"wilcoxon_{i + 1}"] = run(wilcoxon_pairwise, m, o.dv, o.factor, "participant",
-                                         padjust=o.padjust)
+            T[f"wilcoxon_{i + 1}"] = wx
             what = f"{label(o.dv, o.where)}{rows(o.dv, o.where)}"
             res.titles[f"friedman_{i + 1}"] = f"Friedman test of {o.factor}: the {what}"
             res.titles[f"wilcoxon_{i + 1}"] = (f"Wilcoxon signed-rank comparisons of "
