@@ -216,6 +216,20 @@ def test_a_pilot_of_one_finished_and_one_unfinished_session_gets_its_report(cli,
     assert not list(d.glob("anova_*.csv"))
 
 
+def test_a_dataset_copied_into_a_backup_folder_is_not_counted_twice(cli, data, tmp_path):
+    """Every session was counted twice (one participant with 192 trials), or the model
+    could not be fitted: each session found in two folders is named."""
+    root = tmp_path / "data"
+    shutil.copytree(data, root / "duration_interval_grid")
+    shutil.copytree(data, root / "backup" / "duration_interval_grid")
+    r = cli("analyze", str(root), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "session 1 of participant 01 of duration_interval_grid" in r.stderr
+    assert "is found twice" in r.stderr and str(root / "backup") in r.stderr
+    r = cli("analyze", str(root / "duration_interval_grid"), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+
+
 def test_a_trial_log_given_alone_points_to_its_session_folder(cli, data):
     beh = next((data / "sub-01" / "ses-1" / "beh").glob("*_beh.tsv"))
     r = cli("analyze", str(beh))

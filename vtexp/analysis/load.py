@@ -372,6 +372,17 @@ def combine_sessions(sessions: list[SessionData], *, include_practice: bool = Fa
                      ) -> tuple[pd.DataFrame, list[SessionData]]:
     """The tidy table of sessions already read (:func:`load_sessions`' second half)."""
     notes = notes if notes is not None else []
+    seen: dict[tuple, SessionData] = {}
+    for s in sessions:       # one session found in two folders: a copy (a backup) of it
+        m = s.meta
+        key = (str(m["experiment"]), str(m["participant"]), int(m["session"]),
+               m.get("started_at"), m.get("seed"))
+        if key in seen:
+            raise InputError(f"session {key[2]} of participant {key[1]} of {key[0]} (started "
+                             f"{key[3] or '?'}) is found twice: {seen[key].dir} and {s.dir} "
+                             "(a copy, e.g. a backup folder?); give the folders so that each "
+                             "session is found once")
+        seen[key] = s
     twice = [s for s in sessions if s.duplicated_trials]
     if twice and duplicates != "first":
         raise InputError("trials logged twice (two runs of one session wrote at once): "
