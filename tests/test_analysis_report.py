@@ -230,6 +230,48 @@ def test_a_dataset_copied_into_a_backup_folder_is_not_counted_twice(cli, data, t
     assert r.returncode == 0, r.stderr
 
 
+def _cells(col, value, rows=None):
+    """Set column ``col`` of the data rows ``rows`` (all if None) of a trial log."""
+    def edit(text):
+        lines = text.split("\n")
+        i = lines[0].split("\t").index(col)
+        for k in range(1, len(lines)):
+            if lines[k] and (rows is None or k - 1 in rows):
+                cells = lines[k].split("\t")
+                cells[i] = value
+                lines[k] = "\t".join(cells)
+        return "\n".join(lines)
+    return edit
+
+
+def _without(col):
+    def edit(text):
+        lines = text.split("\n")
+        i = lines[0].split("\t").index(col)
+        return "\n".join("\t".join(c for j, c in enumerate(ln.split("\t")) if j != i)
+                         if ln else ln for ln in lines)
+    return edit
+
+
+@pytest.mark.parametrize("damage, says", [
+    (_cells("trial", "", [2]), "line 4: trial is '', not a trial number"),
+    (_cells("trial", "x", [2]), "line 4: trial is 'x', not a trial number"),
+    (_cells("correct", "maybe"), "line 2: correct is 'maybe', not 0, 1 or n/a (96 such rows)"),
+    (_without("shape"), "lacks the column(s) 'shape' of the factors its session record"),
+], ids=["trial-blank", "trial-x", "correct-maybe", "no-factor-column"])
+def test_a_trial_log_changed_by_hand_is_refused_not_analysed(cli, data, tmp_path, damage, says):
+    """Each was analysed without a word: a trial without its number, a participant whose
+    every answer was neither right nor wrong (gone from the rates, still in the counts),
+    trials without their condition."""
+    copy = tmp_path / "copy"
+    shutil.copytree(data, copy)
+    beh = next((copy / "sub-02" / "ses-1" / "beh").glob("*_beh.tsv"))
+    beh.write_text(damage(beh.read_text()))
+    r = cli("analyze", str(copy), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert says in r.stderr and str(beh) in r.stderr, r.stderr
+
+
 def test_a_trial_log_given_alone_points_to_its_session_folder(cli, data):
     beh = next((data / "sub-01" / "ses-1" / "beh").glob("*_beh.tsv"))
     r = cli("analyze", str(beh))

@@ -270,6 +270,16 @@ def events_path(s: SessionData) -> Path | None:
     return base / name
 
 
+def _check_log_columns(df: pd.DataFrame, s: SessionData, beh: Path) -> None:
+    """The factor columns the session record declares are in its trial log."""
+    factors = s.meta.get("experiment_loaded", {}).get("factors", {})
+    missing = [f for f in factors if f not in df.columns]
+    if missing:
+        raise InputError(f"the trial log lacks the column(s) {', '.join(map(repr, missing))} of "
+                         "the factors its session record declares; the log was changed since "
+                         "vtexp wrote it", path=str(beh))
+
+
 def typed_trials(df: pd.DataFrame, s: SessionData) -> pd.DataFrame:
     """A trial log's rows (all strings, n/a missing) as the tidy table's columns: numbers
     typed, duplicates found, experiment/participant/session in front."""
@@ -278,12 +288,28 @@ def typed_trials(df: pd.DataFrame, s: SessionData) -> pd.DataFrame:
     if "trial" not in header or "answer" not in header:
         raise InputError("not a vtexp trial log (no 'trial' and 'answer' columns)", path=str(beh))
     df = df.copy()
-    for col in ("trial", "repetition", "replays", "n_pulses"):
-        df[col] = pd.to_numeric(df[col], errors="coerce").astype("Int64")
-    for col in ("practice", "correct"):
-        df[col] = pd.to_numeric(df[col], errors="coerce").astype("Int64")
-    for col in ("rt_s", "stimulus_onset_ms", "stimulus_duration_ms"):
-        df[col] = pd.to_numeric(df[col], errors="coerce")
+    _check_log_columns(df, s, beh)
+    for col in ("trial", "repetition", "replays", "n_pulses", "practice", "correct",
+                "rt_s", "stimulus_onset_ms", "stimulus_duration_ms"):
+        if col not in df.columns:
+            continue
+        raw = df[col]
+        num = pd.to_numeric(raw, errors="coerce")
+        bad = raw.notna() & num.isna()
+        if col in ("practice", "correct"):
+            bad |= num.notna() & ~num.isin([0, 1])
+        elif col == "trial":
+            bad |= raw.isna() | (num.notna() & ((num < 1) | (num % 1 != 0)))
+        if bad.any():
+            i = int(bad.to_numpy().argmax())
+            what = {"practice": "0 or 1", "correct": "0, 1 or n/a", "trial": "a trial number"}
+            value = raw.iloc[i] if raw.notna().iloc[i] else "n/a"
+            raise InputError(f"line {i + 2}: {col} is {value!r}, not "
+                             f"{what.get(col, 'a number or n/a')}"
+                             + (f" ({int(bad.sum())} such rows)" if bad.sum() > 1 else "")
+                             + "; the log was changed since vtexp wrote it", path=str(beh))
+        df[col] = num.astype("Int64") if col in ("trial", "repetition", "replays", "n_pulses",
+                                                  "practice", "correct") else num
     dup = df.duplicated(["trial", "question"], keep="first") if "question" in df.columns \
         else df.duplicated(["trial"], keep="first")
     duplicated = sorted({int(t) for t in df.loc[dup, "trial"].dropna()})
