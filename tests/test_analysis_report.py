@@ -272,6 +272,19 @@ def test_a_trial_log_changed_by_hand_is_refused_not_analysed(cli, data, tmp_path
     assert says in r.stderr and str(beh) in r.stderr, r.stderr
 
 
+def test_a_session_whose_record_was_deleted_is_said_to_be_left_out(cli, data, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(data, copy)
+    session_record(copy / "sub-03" / "ses-1").unlink()
+    beh = next((copy / "sub-03" / "ses-1" / "beh").glob("*_beh.tsv"))
+    r = cli("analyze", str(copy), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    assert "1 trial log(s) without a session record, left out" in r.stderr
+    assert str(beh) in r.stderr
+    s = pd.read_csv(tmp_path / "out" / "duration_interval_grid" / "sessions.csv", dtype=str)
+    assert sorted(s["participant"]) == ["01", "02"]
+
+
 def test_a_trial_log_given_alone_points_to_its_session_folder(cli, data):
     beh = next((data / "sub-01" / "ses-1" / "beh").glob("*_beh.tsv"))
     r = cli("analyze", str(beh))

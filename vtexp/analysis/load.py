@@ -387,9 +387,31 @@ def load_sessions(paths: list[Path | str], *, include_practice: bool = False,
         raise InputError("no vtexp sessions found (no session record below "
                          + ", ".join(map(str, paths)) + ")")
     sessions = [read_session(d) for d in dirs]
+    notes = notes if notes is not None else []
+    orphans = _logs_without_record(paths, sessions)
+    if orphans:
+        notes.append(f"{len(orphans)} trial log(s) without a session record, left out (a "
+                     "record deleted or not copied? without it a log cannot be checked): "
+                     + ", ".join(map(str, orphans[:5])) + (", ..." if len(orphans) > 5 else ""))
     return combine_sessions(sessions, include_practice=include_practice, strict=strict,
                             duplicates=duplicates, include_simulated=include_simulated,
                             notes=notes)
+
+
+def _logs_without_record(paths: list[Path | str], sessions: list[SessionData]) -> list[Path]:
+    """Trial logs (``*_beh.tsv``) below the folders given that no session read names."""
+    named = {beh_path(s).resolve() for s in sessions}
+    out = []
+    for p in map(Path, paths):
+        if not p.is_dir():
+            continue
+        for f in p.rglob("*_beh.tsv"):
+            parts = f.relative_to(p).parts
+            if any(x.startswith(".") for x in parts) or "derivatives" in parts:
+                continue
+            if f.resolve() not in named:
+                out.append(f)
+    return sorted(out)
 
 
 def combine_sessions(sessions: list[SessionData], *, include_practice: bool = False,
