@@ -167,6 +167,10 @@ def test_reserved_factor_name(tmp_path, minimal_yaml):
      "stimuli.square.file"),
     (("square: {generator: shape, params: {shape: square}}", 'square: {file: ""}'),
      "stimuli.square.file: String should have at least 1 character"),     # was a TypeError
+    (("soa_ms: 200}", "soa_ms: 1000000000}"),           # passed as within the device's limits
+     "coding.params.soa_ms: Input should be less than or equal to 60000"),
+    (("duration_ms: 200,", "duration_ms: .inf,"),
+     "coding.params.duration_ms: Input should be less than or equal to 60000 (got inf)"),
 ])
 def test_cli_validate_reports_one_clear_message(tmp_path, minimal_yaml, cli, mutation, needle):
     f = write_experiment(tmp_path, minimal_yaml.replace(*mutation))

@@ -32,6 +32,12 @@ from .errors import InputError
 from .resources import devices_dir
 
 
+#: A time of a stimulus's coding (a vibration, an SOA, a pulse width, a display time), in
+#: milliseconds: positive and at most a minute, since an element of a tactile stimulus in
+#: a human study lasts seconds (10^9 ms passed as "within the device's limits").
+Ms = Annotated[float, Field(gt=0, le=60_000)]
+
+
 class Model(BaseModel):
     """Base: unknown keys are errors; JSON round trip helpers."""
 

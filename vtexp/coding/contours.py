@@ -32,9 +32,7 @@ from pydantic import Field, model_validator
 from typing_extensions import Self
 
 from ..errors import InputError
-from ..model import DeviceProfile, LevelDrive, Model, Pattern, Pulse, Schedule
-
-Ms = Annotated[float, Field(gt=0, le=60000)]
+from ..model import DeviceProfile, LevelDrive, Model, Ms, Pattern, Pulse, Schedule
 
 
 class ContourModeParams(Model):

@@ -64,6 +64,7 @@ from ..errors import InputError
 from ..model import (
     DeviceProfile,
     Model,
+    Ms,
     Pattern,
     Pulse,
     PulseTrain,
@@ -80,18 +81,18 @@ class PulseTrainParams(Model):
     amplitude_v: Annotated[float, Field(gt=0)] = Field(2.0, description="A_p (Tables 2-3)")
     frequency_hz: Annotated[float, Field(gt=0)] = Field(
         40.0, description="f: 25 (Table 2), 40 (Table 3, adopted in §4), 50 tried")
-    pulse_width_ms: Annotated[float, Field(gt=0)] = Field(1.0, description="l_p (Tables 2-3)")
-    vibration_ms: Annotated[float, Field(gt=0)] = Field(
+    pulse_width_ms: Ms = Field(1.0, description="l_p (Tables 2-3)")
+    vibration_ms: Ms = Field(
         200.0, description="L, how long one point vibrates (Tables 2-3)")
     corner_emphasis: bool = Field(True, description="play corner points with Table 4")
     corner_amplitude_v: Annotated[float, Field(gt=0)] = Field(2.0, description="Table 4")
     corner_frequency_hz: Annotated[float, Field(gt=0)] = Field(40.0, description="Table 4")
-    corner_pulse_width_ms: Annotated[float, Field(gt=0)] = Field(1.5, description="Table 4")
-    corner_vibration_ms: Annotated[float, Field(gt=0)] = Field(400.0, description="Table 4")
+    corner_pulse_width_ms: Ms = Field(1.5, description="Table 4")
+    corner_vibration_ms: Ms = Field(400.0, description="Table 4")
     phantom_model: PhantomModel = Field(
         "energy", description="intensity split of a phantom point: linear (1−β, β) or "
                               "energy (√(1−β), √β, Tactile Brush)")
-    soa_ms: Annotated[float, Field(gt=0)] | None = Field(
+    soa_ms: Ms | None = Field(
         None, description="onset-to-onset time between consecutive points; if absent, "
                           "Tactile Brush's 0.32·d + 47.3 ms")
     loops: Annotated[int, Field(ge=1, le=100)] = Field(1, description="times the path is played")

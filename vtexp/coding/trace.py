@@ -7,14 +7,14 @@ from typing import Annotated
 from pydantic import Field
 
 from ..errors import InputError
-from ..model import DeviceProfile, LevelDrive, Model, Pattern, Pulse, Schedule
+from ..model import DeviceProfile, LevelDrive, Model, Ms, Pattern, Pulse, Schedule
 
 
 class SequentialTraceParams(Model):
     """Sequential tracing of seed 001 §3.3 and §4.1."""
 
-    duration_ms: Annotated[float, Field(gt=0)] = Field(300, description="vibration of one tactor")
-    soa_ms: Annotated[float, Field(gt=0)] = Field(
+    duration_ms: Ms = Field(300, description="vibration of one tactor")
+    soa_ms: Ms = Field(
         200, description="onset-to-onset time between consecutive tactors (the paper's "
                          "'time interval')")
     loops: Annotated[int, Field(ge=1, le=100)] = Field(1, description="times the loop is played")
