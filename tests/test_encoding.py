@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from vtexp.coding import sequential_trace
@@ -115,6 +115,9 @@ def test_rotated_and_scaled_shapes_mostly_give_one_closed_loop():
 @given(shape=st.sampled_from(SHAPES), rot=st.floats(0, 360), dx=st.floats(0.4, 0.6),
        dy=st.floats(0.4, 0.6), size=st.floats(0.5, 0.8), noise=st.floats(0, 8),
        contrast=st.integers(60, 190))
+# found by hypothesis: noise pixels past Otsu's threshold stretched the object's box, and
+# the triangle lost 7 of its 12 cells
+@example(shape="triangle", rot=0.0, dx=0.5, dy=0.5, size=0.5, noise=7.5, contrast=60)
 def test_outline_tolerates_rotation_offset_noise_and_low_contrast(shape, rot, dx, dy, size,
                                                                   noise, contrast):
     # Stated tolerance: any rotation, offsets of +-10 % of the frame, sizes 50-80 % of
