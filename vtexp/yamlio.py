@@ -154,7 +154,8 @@ def load_yaml(path: str | Path) -> LoadedYaml:
         if len(raw) > MAX_BYTES:
             raise InputError(f"is over {MAX_BYTES:,} bytes long; an experiment file is a few "
                              "kilobytes", path=str(p))
-        text = raw.decode("utf-8")
+        # line ends as text mode reads them (\r\n and \r become \n)
+        text = raw.decode("utf-8").replace("\r\n", "\n").replace("\r", "\n")
     except FileNotFoundError:
         raise InputError("file not found", path=str(p)) from None
     except IsADirectoryError:
