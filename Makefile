@@ -64,9 +64,11 @@ demo: $(VENV)/.core
 # Three test processes (pytest-xdist), each test file whole in one of them. Most tests
 # run on a virtual clock; those whose subject is real time (a real pty, the firmware in
 # simavr, the window under Xvfb, signals to a process) wait on it, and a third process
-# keeps both cores busy while they do.
+# keeps both cores busy while they do. Bytecode is cached even where the environment says
+# not to (PYTHONDONTWRITEBYTECODE): the suite starts Python about a hundred times, and each
+# would compile vtexp again.
 test: system-packages $(VENV)/.test
-	$(BIN)/python -m pytest -n 3 --dist loadfile
+	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -n 3 --dist loadfile
 
 clean:
 	rm -rf $(VENV) .pytest_cache test-output
