@@ -66,9 +66,13 @@ demo: $(VENV)/.core
 # simavr, the window under Xvfb, signals to a process) wait on it, and a third process
 # keeps both cores busy while they do. Bytecode is cached even where the environment says
 # not to (PYTHONDONTWRITEBYTECODE): the suite starts Python about a hundred times, and each
-# would compile vtexp again.
+# would compile vtexp again. The study on the AVR firmware in simavr runs alone afterwards:
+# under the load of the other tests the firmware's timing defect (a tick held off by its
+# own fall loop, a pulse or an amplitude late; see docs/firmware.md) shows in some runs.
 test: system-packages $(VENV)/.test
-	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -n 3 --dist loadfile
+	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -n 3 --dist loadfile \
+	  --ignore=tests/test_firmware_study.py
+	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest tests/test_firmware_study.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache test-output
