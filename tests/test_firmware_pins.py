@@ -341,7 +341,10 @@ def test_no_sma_pulse_outlasts_its_width_when_trains_change_mid_pulse():
     syncs = tr.sync_rises
     during = sum(int(np.count_nonzero((syncs > r + 320) & (syncs < f - 320)))
                  for ps in pulses.values() for r, f in ps)
-    assert during > 30                  # changes that came mid-pulse, on some pin
+    # Changes that came mid-pulse, on some pin: the sends are timed by the wall clock, so
+    # how many land inside a pulse varies (33 and 53 in two runs on an idle machine, 26 in
+    # a run under the suite's load).
+    assert during > 10, during
     assert late["vt_late_ticks"] > 0 and late["vt_uart_overruns"] == 0, late
     assert fwtrace.all_off_at_end(tr, 25)
 
