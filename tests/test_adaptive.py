@@ -169,6 +169,33 @@ def test_quest_posterior_by_hand():
     assert q.propose() == pytest.approx(sum(a * p / z for a, p in zip(th, post)))
 
 
+@pytest.mark.parametrize("function", ["weibull", "logistic", "normal", "gumbel"])
+def test_the_likelihood_gradient_equals_finite_differences(function):
+    from scipy.optimize import approx_fprime
+
+    from vtexp.adaptive.fit import _nll
+    rng = np.random.default_rng(1)
+    checked = 0
+    while checked < 60:
+        levels = np.sort(rng.uniform(10 if function == "weibull" else -50, 300, 6))
+        n = rng.integers(1, 20, 6).astype(float)
+        k = np.floor(rng.uniform(0, 1, 6) * (n + 1)).clip(0, n)
+        guess = float(rng.choice([0.0, 0.5, 1 / 3]))
+        slope = rng.uniform(0.5, 10) if function == "weibull" else rng.uniform(0.01, 5)
+        for lapse in (None, 0.02):
+            theta = np.array([rng.uniform(50, 250), np.log(slope)]
+                             + ([rng.uniform(0, 0.1)] if lapse is None else []))
+            p = psi(levels, theta[0], slope, guess, theta[2] if lapse is None else lapse,
+                    function)
+            if p.min() < 1e-6 or p.max() > 1 - 1e-6:
+                continue                    # where psi's own rounding hides its slope
+            _, grad = _nll(theta, levels, k, n, guess, function, lapse)
+            num = approx_fprime(theta, lambda t: _nll(t, levels, k, n, guess, function,
+                                                      lapse)[0], 1e-7)
+            np.testing.assert_allclose(grad, num, rtol=2e-3, atol=2e-3)
+            checked += 1
+
+
 def test_fit_recovers_a_known_function():
     rng = np.random.default_rng(3)
     x = np.repeat(np.linspace(20, 300, 15), 40)

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from .psychometric import psi
+from .psychometric import core, psi
 
 
 @dataclass
@@ -66,11 +66,47 @@ def _aggregate(x, yes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return levels, k, n
 
 
+def _core_and_slopes(x, a, b, function):
+    """``F(x; a, b)`` and its derivatives by ``a`` and by ``b``, in closed form."""
+    if function == "weibull":
+        r = np.clip(x, 0.0, None) / a
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.power(r, b)
+            log_r = np.where(r > 0, np.log(np.where(r > 0, r, 1.0)), 0.0)
+        e = np.exp(-z)
+        return -np.expm1(-z), e * (-b * z / a), e * z * log_r
+    if function in ("logistic", "normal"):
+        u = b * (x - a)
+        if function == "logistic":
+            f = 0.5 * (1.0 + np.tanh(0.5 * u))
+            d = f * (1.0 - f)
+        else:
+            f = core(x, a, b, "normal")
+            d = np.exp(-0.5 * u * u) / np.sqrt(2.0 * np.pi)
+        return f, -b * d, (x - a) * d
+    if function == "gumbel":
+        w = np.power(10.0, b * (x - a) / 20.0)
+        d = np.exp(-w) * w * np.log(10.0) / 20.0
+        return -np.expm1(-w), -b * d, (x - a) * d
+    raise ValueError(f"unknown psychometric function {function!r}")
+
+
 def _nll(theta, levels, k, n, guess, function, lapse_fixed):
-    a, log_b = theta[0], theta[1]
+    """The negative log-likelihood (eq. 2-3 of Wichmann & Hill 2001a) and its gradient in
+    ``(a, log b[, lapse])``: the chain rule through ``psi = g + (1 - g - lapse) F``."""
+    a, b = theta[0], np.exp(theta[1])
     lam = theta[2] if lapse_fixed is None else lapse_fixed
-    p = np.clip(psi(levels, a, np.exp(log_b), guess, lam, function), 1e-12, 1 - 1e-12)
-    return -float(np.sum(k * np.log(p) + (n - k) * np.log1p(-p)))
+    f, df_da, df_db = _core_and_slopes(levels, a, b, function)
+    scale = 1.0 - guess - lam
+    raw = guess + scale * f
+    p = np.clip(raw, 1e-12, 1 - 1e-12)
+    inside = (raw == p)                       # where the clip holds p, it has no slope
+    dl_dp = np.where(inside, k / p - (n - k) / (1.0 - p), 0.0)
+    grad = [-np.sum(dl_dp * scale * df_da), -np.sum(dl_dp * scale * df_db) * b]
+    if lapse_fixed is None:
+        grad.append(np.sum(dl_dp * f))
+    value = -float(np.sum(k * np.log(p) + (n - k) * np.log1p(-p)))
+    return value, np.nan_to_num(np.asarray(grad, float))
 
 
 def _fit_counts(levels, k, n, *, function, guess, lapse, max_lapse, start=None):
@@ -100,7 +136,7 @@ def _fit_counts(levels, k, n, *, function, guess, lapse, max_lapse, start=None):
         warnings.simplefilter("ignore", RuntimeWarning)
         res = minimize(_nll, np.asarray(start, float),
                        args=(levels, k, n, guess, function, lapse_fixed),
-                       method="L-BFGS-B", bounds=bounds)
+                       method="L-BFGS-B", jac=True, bounds=bounds)
     a, b = float(res.x[0]), float(np.exp(res.x[1]))
     lam = float(res.x[2]) if lapse_fixed is None else lapse_fixed
     return a, b, lam, -float(res.fun), bool(res.success)

@@ -32,7 +32,20 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from scipy.special import ndtr, ndtri
+
+
+# scipy.special takes a quarter of a second to import, and every session imports this
+# module (the scripted responders answer by it): it is imported when a normal function is
+# first evaluated.
+def ndtr(x):
+    from scipy.special import ndtr as f
+    return f(x)
+
+
+def ndtri(p):
+    from scipy.special import ndtri as f
+    return f(p)
+
 
 FunctionName = Literal["weibull", "logistic", "normal", "gumbel"]
 FUNCTIONS: tuple[str, ...] = ("weibull", "logistic", "normal", "gumbel")
