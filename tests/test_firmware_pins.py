@@ -349,6 +349,30 @@ def test_no_sma_pulse_outlasts_its_width_when_trains_change_mid_pulse():
     assert fwtrace.all_off_at_end(tr, 25)
 
 
+def test_new_amplitudes_on_running_sma_pins_change_together_just_after_the_tick():
+    """Eight running trains on the eight channels of one LTC2656 get a new amplitude in
+    one frame: their channels' input registers are written before the commit, and one
+    transfer after the commit's tick updates all eight (written one transfer a channel
+    at the tick, the last changed some 240 us into the new trains' first pulses)."""
+    a2000, a1000 = wire.Train(2000, 5000, 1500), wire.Train(1000, 5000, 1500)
+    with AvrSimulator("sma_5x5") as sim:
+        link = Raw(sim.port)
+        link.send(wire.Hello(1, 1000, 1000), 0)
+        link.send(wire.SetFrame(2, tuple((i, a2000) for i in range(8))), 1)
+        time.sleep(0.05)
+        link.send(wire.SetFrame(2, tuple((i, a1000) for i in range(8))), 2)
+        time.sleep(0.05)
+        link.send(wire.AllOff(), 3)
+    tr = fwtrace.Trace.load(sim.trace_path)
+    changes = [(c, pin) for c, pin, code in fwtrace.dac_codes(tr)
+               if pin < 8 and fwtrace.code_to_mv(code, 2000) == 1000]
+    assert sorted(pin for _, pin in changes) == list(range(8))
+    cycles = {c for c, _ in changes}
+    assert len(cycles) == 1, sorted(cycles)                   # one transfer
+    commit = [r for r in tr.sync_rises if r < min(cycles)][-1]  # the second frame's tick
+    assert 0 < fwtrace.us(min(cycles) - commit) <= 40
+
+
 def test_output_enable_stays_off_through_a_reset():
     with AvrSimulator("vest_6x8") as sim:
         link = Raw(sim.port)

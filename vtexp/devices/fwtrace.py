@@ -262,18 +262,39 @@ def gate_edges(trace: Trace, n_pins: int = 25) -> dict[int, list[tuple[int, int]
 
 
 def dac_codes(trace: Trace, chips: int = 4) -> list[tuple[int, int, int]]:
-    """``[(cycle, pin, code)]``: each DAC channel write (LTC2656, daisy-chained; a 32-bit
-    word per chip, the farthest first; command 0011 writes and updates channel n)."""
+    """``[(cycle, pin, code)]``: each change of a DAC channel's output (LTC2656,
+    daisy-chained; a 32-bit word per chip, the farthest first, executed as CS/LD rises).
+
+    The chips are modelled as the datasheet has them (Table 1): command 0000 writes the
+    input register of channel n, 0001 updates the DAC register of n from it, 0010 writes
+    input n and updates all, 0011 writes and updates n; address 1111 is every channel.
+    An update of a channel whose input register was never written changes nothing.
+    """
     out = []
+    inp: dict[int, int] = {}                       # input registers, by pin
+
+    def update(c: int, pin: int) -> None:
+        if pin in inp:
+            out.append((c, pin, inp[pin]))
+
     for c, data in trace.latches:
         if len(data) != 4 * chips:
             continue
         for k in range(chips):
             chip = chips - 1 - k
             w = data[4 * k:4 * k + 4]
-            cmd, ch = w[1] >> 4, w[1] & 0xF
-            if cmd == 0x3 and ch < 8:
-                out.append((c, chip * 8 + ch, ((w[2] << 8) | w[3]) >> 4))
+            cmd, addr = w[1] >> 4, w[1] & 0xF
+            targets = range(8) if addr == 0xF else (addr,) if addr < 8 else ()
+            code = ((w[2] << 8) | w[3]) >> 4
+            if cmd in (0x0, 0x2, 0x3):
+                for ch in targets:
+                    inp[chip * 8 + ch] = code
+            if cmd in (0x1, 0x3):
+                for ch in targets:
+                    update(c, chip * 8 + ch)
+            elif cmd == 0x2:
+                for ch in range(8):
+                    update(c, chip * 8 + ch)
     return out
 
 

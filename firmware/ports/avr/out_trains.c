@@ -12,15 +12,20 @@
  *
  * Amplitude: each pin's gate MOSFET switches the output of its own linear stage,
  * set by one DAC channel (pin i: chip i / 8, channel i % 8; full scale =
- * VT_FULL_SCALE_MV at the pin). A channel is written when its amplitude changes:
- * ahead of the commit (out_commit.c calls vt_out_commit_prepare) if the pin is idle, or
- * at the commit's tick, after its edges, if a train still runs on it (the new train's
- * first pulse begins at the old amplitude).
+ * VT_FULL_SCALE_MV at the pin). A channel is written when its amplitude changes, ahead
+ * of the commit (out_commit.c calls vt_out_commit_prepare): written and updated at once
+ * if the pin is idle; if a train still runs on it, written to the channel's input
+ * register only, and the commit's tick, after its edges, updates every channel of the
+ * chips concerned from their input registers in one transfer (so the new amplitude is
+ * on the pin one transfer, ~30 us, after the tick, however many channels change).
  *
  * LTC2656 word (32 bits for a daisy chain): 8 don't-care bits, command C3-C0,
- * address A3-A0, 12-bit code, 4 don't-care bits; command 0011 writes and updates
- * channel n, 1111 does nothing; the farthest chip's word is shifted first; CS/LD
- * rising executes them (LTC2656 datasheet, "Operation", Table 1).
+ * address A3-A0, 12-bit code, 4 don't-care bits; command 0000 writes input register n,
+ * 0001 updates DAC register n from it (address 1111: all eight), 0011 writes and
+ * updates channel n, 1111 does nothing; the farthest chip's word is shifted first;
+ * CS/LD rising executes them (LTC2656 datasheet, "Operation", Table 1). Every channel
+ * written with 0000 is updated by the next 0001 to its chip, so a chip's input and DAC
+ * registers differ only between a commit's preparation and its tick.
  */
 #include "vt_profile.h"
 
@@ -36,8 +41,11 @@
 #include "vt_hal.h"
 
 #define N VT_MAX_ACTUATORS
+#define DAC_WRITE_INPUT 0x0
+#define DAC_UPDATE 0x1
 #define DAC_WRITE 0x3
 #define DAC_NOP 0xF
+#define DAC_ALL 0xF
 
 typedef struct {
     uint32_t edge;           /* time of the next edge, us (wrapping; compared by difference) */
@@ -120,12 +128,15 @@ _Static_assert(sizeof pins + sizeof staged + sizeof dac_code + sizeof dac_want +
                "profile " VT_PROFILE_NAME ": the train state exceeds the port's RAM budget");
 
 
-/* Plan the transfers that give the pins in mask the codes they need (one channel per chip
- * per transfer: a word per chip, the farthest first, NOP for the others) into buf;
- * returns how many. The codes count as written from now on. */
-static uint8_t dac_plan(uint32_t mask, uint8_t *buf, uint8_t max)
+/* Plan the transfers that give the pins in mask the codes they need with command cmd
+ * (one channel per chip per transfer: a word per chip, the farthest first, NOP for the
+ * others) into buf; returns how many, and the chips written in *chips (a bit each). The
+ * codes count as written from now on. */
+static uint8_t dac_plan(uint32_t mask, uint8_t cmd, uint8_t *buf, uint8_t max,
+                        uint8_t *chips)
 {
     uint8_t n = 0;
+    *chips = 0;
     while (n < max) {
         int8_t channel[VT_DAC_CHIPS];
         uint16_t code[VT_DAC_CHIPS];
@@ -140,6 +151,7 @@ static uint8_t dac_plan(uint32_t mask, uint8_t *buf, uint8_t max)
             channel[chip] = (int8_t)(i & 7);
             code[chip] = dac_want[i];
             dac_code[i] = dac_want[i];
+            *chips |= (uint8_t)(1 << chip);
             any = 1;
         }
         if (!any)
@@ -149,7 +161,7 @@ static uint8_t dac_plan(uint32_t mask, uint8_t *buf, uint8_t max)
             uint8_t on = channel[chip] >= 0;
             uint16_t v = on ? (uint16_t)(code[chip] << 4) : 0;
             *w++ = 0;
-            *w++ = (uint8_t)((on ? DAC_WRITE : DAC_NOP) << 4 | (on ? channel[chip] : 0));
+            *w++ = (uint8_t)((on ? cmd : DAC_NOP) << 4 | (on ? channel[chip] : 0));
             *w++ = (uint8_t)(v >> 8);
             *w++ = (uint8_t)v;
         }
@@ -172,12 +184,32 @@ static void dac_send(const uint8_t *buf, uint8_t n)
     }
 }
 
-/* Write now the channels of the pins in mask whose code differs from what they hold.
- * Not while a set is committed: its transfers wait in dac_xfer, planned here too (which
- * keeps 128 bytes off the stack of the commit's deepest call). */
-static void dac_update(uint32_t mask)
+/* Write now the channels of the pins in mask whose code differs from what they hold,
+ * with command cmd; returns the chips written. Not while a set is committed: its update
+ * waits in dac_xfer, planned here too (which keeps 128 bytes off the stack of the
+ * commit's deepest call). */
+static uint8_t dac_update(uint32_t mask, uint8_t cmd)
 {
-    dac_send(dac_xfer, dac_plan(mask, dac_xfer, 8));
+    uint8_t chips;
+    dac_send(dac_xfer, dac_plan(mask, cmd, dac_xfer, 8, &chips));
+    return chips;
+}
+
+/* The transfer that updates every channel of the chips in the mask from their input
+ * registers (NOP for the other chips) into dac_xfer; returns 1, or 0 for no chip. */
+static uint8_t dac_plan_update(uint8_t chips)
+{
+    if (!chips)
+        return 0;
+    uint8_t *w = dac_xfer;
+    for (int8_t chip = VT_DAC_CHIPS - 1; chip >= 0; chip--) {
+        uint8_t on = (chips >> chip) & 1;
+        *w++ = 0;
+        *w++ = (uint8_t)((on ? DAC_UPDATE : DAC_NOP) << 4 | (on ? DAC_ALL : 0));
+        *w++ = 0;
+        *w++ = 0;
+    }
+    return 1;
 }
 
 void vt_out_init(void)
@@ -195,7 +227,7 @@ void vt_out_init(void)
         dac_code[i] = 0xFFFF;                 /* unknown: every channel is written once */
         dac_want[i] = 0;
     }
-    dac_update(0xFFFFFFFFUL);
+    dac_update(0xFFFFFFFFUL, DAC_WRITE);
 }
 
 static uint16_t code_of(uint16_t mv)
@@ -364,11 +396,12 @@ void vt_out_tick(void)
         pre_commit = 0;
         vt_commit_applied(c);
         if (n_dac_xfer) {
-            /* The amplitudes of trains that replace a running one on their pin: sent
-             * after this tick's edges (the first ~35 us per transfer of the new train's
-             * first pulse carry the old amplitude), not before (that would touch the old
-             * train). A tick that comes meanwhile finds the next not yet prepared: its
-             * edges go out a tick late (the fall ring keeps its falls on time). */
+            /* The amplitudes of trains that replace a running one on their pin, in their
+             * channels' input registers since the commit: updated after this tick's
+             * edges (the first ~30 us of the new train's first pulse carry the old
+             * amplitude), not before (that would touch the old train). A tick that comes
+             * meanwhile finds the next not yet prepared: its edges go out a tick late
+             * (the fall ring keeps its falls on time). */
             uint8_t n = n_dac_xfer;
             n_dac_xfer = 0;
             sei();
@@ -415,8 +448,8 @@ void vt_out_tick(void)
         advance(t_next, (uint8_t)(k + 1));
     }
     cli();
-    uint8_t late = 0;
-    if (off_count != offs) {
+    uint8_t late = 0, wiped = off_count != offs;
+    if (wiped) {
         all_pins_wiped();                     /* the watchdog fired meanwhile: it stands */
         commit = 0;
     } else {
@@ -425,17 +458,23 @@ void vt_out_tick(void)
         out_c = g_now[1];
         out_l = g_now[2];
         out_g = g_now[3];
-        /* what this preparation turned off is off in the gates it leaves: the ring and
-         * the hold have nothing more to do for those pins */
+    }
+    pre_commit = commit;
+    pre_sync = commit && vt_commit_onsets;
+    if (!wiped) {
+        /* What this preparation turned off is off in the gates it leaves: the ring and the
+         * hold have nothing more to do for those pins. A pin at a time, interrupts on in
+         * between: with 25 pins falling, the loop kept a tick waiting past a short
+         * interrupt. A tick meanwhile only applies gates that have them off already. */
         for (uint8_t j = 0; j < n_fell; j++) {
+            sei();                            /* (an interrupt waits one instruction more) */
             pin_t *p = fell[j];
             uint8_t m = (uint8_t)~p->mask;
+            cli();
             fall_ring[p->fall_slot][p->port] &= m;
             held_off[p->port] &= m;
         }
     }
-    pre_commit = commit;
-    pre_sync = commit && vt_commit_onsets;
     if (commit && late) {
         /* The set goes out that many ticks late, and is reported then: its trains are
          * timed from then, and a first pulse keeps its whole width (its fall moves
@@ -492,10 +531,11 @@ void vt_hal_stage(uint16_t index, const vt_setting *s)
 void vt_out_prepare(void) {}                  /* the tick interrupt prepares the next tick */
 
 /* Before a set is scheduled (out_commit.c): the amplitudes it needs. The channels of
- * pins that are idle now are written at once, out of the tick, where they disturb no
- * train; the rest are planned for the commit's tick, which sends them after its edges.
- * The tick reads n_dac_xfer only once this set is scheduled (the core commits one set
- * at a time), so it is written here with interrupts on. */
+ * pins that are idle now are written and updated at once, out of the tick, where they
+ * disturb no train; those of the rest are written to their input registers, and the
+ * commit's tick updates them after its edges. The tick reads n_dac_xfer only once this
+ * set is scheduled (the core commits one set at a time), so it is written here with
+ * interrupts on. */
 void vt_out_commit_prepare(void)
 {
     uint32_t idle = 0, bit = 1;
@@ -507,8 +547,8 @@ void vt_out_commit_prepare(void)
         if (!pins[i].on)
             idle |= bit;
     }
-    dac_update(idle);
-    n_dac_xfer = dac_plan(staged_mask & ~idle, dac_xfer, 8);
+    dac_update(idle, DAC_WRITE);
+    n_dac_xfer = dac_plan_update(dac_update(staged_mask & ~idle, DAC_WRITE_INPUT));
 }
 
 void vt_hal_all_off(void)
@@ -539,6 +579,14 @@ void vt_hal_all_off(void)
     cli();
     held_off[0] = held_off[1] = held_off[2] = held_off[3] = 0;
     sei();
+    /* A set abandoned before its tick: the channels written to their input registers for
+     * it are updated now, every pin being off, so that input and DAC registers agree
+     * again (the tick no longer sends it: pre_commit is off). */
+    if (n_dac_xfer) {
+        uint8_t nx = n_dac_xfer;
+        n_dac_xfer = 0;
+        dac_send(dac_xfer, nx);
+    }
 }
 
 #endif
