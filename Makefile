@@ -61,16 +61,16 @@ venv-test: system-packages $(VENV)/.test
 demo: $(VENV)/.core
 	$(BIN)/vtexp demo
 
-# Three test processes (pytest-xdist), each test file whole in one of them. Most tests
-# run on a virtual clock; those whose subject is real time (a real pty, the firmware in
-# simavr, the window under Xvfb, signals to a process) wait on it, and a third process
-# keeps both cores busy while they do. Bytecode is cached even where the environment says
-# not to (PYTHONDONTWRITEBYTECODE): the suite starts Python about a hundred times, and each
-# would compile vtexp again. The study on the AVR firmware in simavr runs alone afterwards:
-# under the load of the other tests the firmware's timing defect (a tick held off by its
-# own fall loop, a pulse or an amplitude late; see docs/firmware.md) shows in some runs.
+# Four test processes (pytest-xdist) on the two cores, each test file whole in one of
+# them. Most tests run on a virtual clock; those whose subject is real time (a real pty,
+# the firmware in simavr, the window under Xvfb, signals to a process) wait on it, and
+# the other processes keep both cores busy while they do. Bytecode is cached even where
+# the environment says not to (PYTHONDONTWRITEBYTECODE): the suite starts Python about
+# a hundred times, and each would compile vtexp again. The study on the AVR firmware in
+# simavr runs alone afterwards: under the load of the other tests the firmware's open
+# timing defect (see docs/firmware.md, Known limits) shows in some runs.
 test: system-packages $(VENV)/.test
-	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -n 3 --dist loadfile \
+	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -n 4 --dist loadfile \
 	  --ignore=tests/test_firmware_study.py
 	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest tests/test_firmware_study.py
 
