@@ -115,6 +115,40 @@ def test_stimulus_from_an_image_file(tmp_path, minimal_yaml):
     assert load(tmp_path, text).experiment.stimuli["square"].file == "square.png"
 
 
+def test_a_stimulus_file_outside_the_experiments_folder_is_said_and_recorded(
+        tmp_path, minimal_yaml, cli):
+    import hashlib
+    import json
+
+    from conftest import write_experiment
+    from vtexp._cv2 import cv2
+    from vtexp.stimuli import render_shape
+    (tmp_path / "images").mkdir()
+    (tmp_path / "exp").mkdir()
+    image = tmp_path / "images" / "square.png"
+    cv2().imwrite(str(image), render_shape(shape="square"))
+    (tmp_path / "exp" / "square.png").write_bytes(image.read_bytes())
+    outside = write_experiment(tmp_path / "exp", minimal_yaml.replace(
+        "square: {generator: shape, params: {shape: square}}",
+        "square: {file: ../images/square.png}"), "outside.yaml")
+    inside = write_experiment(tmp_path / "exp", minimal_yaml.replace(
+        "square: {generator: shape, params: {shape: square}}",
+        "square: {file: square.png}"), "inside.yaml")
+    r = cli("validate", str(outside))
+    assert r.returncode == 0, r.stderr
+    assert f"{outside}:5: stimulus 'square': '../images/square.png' is outside the " \
+           "experiment's folder" in r.stderr and str(image) in r.stderr
+    r = cli("validate", str(inside))
+    assert r.returncode == 0 and "note" not in r.stderr, r.stderr
+    # a session says it too, and records which file it read
+    r = cli("run", str(outside), "-p", "01", "--responder", "scripted:correct", "--data",
+            str(tmp_path / "data"), "--quiet")
+    assert r.returncode == 0 and "outside the experiment's folder" in r.stderr, r.stderr
+    rec = json.loads(next((tmp_path / "data").rglob("*_session.json")).read_text())
+    digest = hashlib.sha256(image.read_bytes()).hexdigest()
+    assert rec["stimulus_files"] == {"square": {"path": str(image), "sha256": digest}}
+
+
 def test_unknown_device(tmp_path, minimal_yaml):
     e = error_of(tmp_path, minimal_yaml.replace("device: vest_6x8", "device: vest_9x9"))
     assert e.key == "device" and e.line == 3 and "known profiles" in e.message

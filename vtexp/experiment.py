@@ -563,6 +563,9 @@ class LoadedExperiment:
         self.source = source
         self.path = Path(source.path)
         self.sha256 = hashlib.sha256(source.text.encode("utf-8")).hexdigest()
+        #: what the checks accepted but the experimenter should hear (printed by validate
+        #: and run): stimulus files outside the experiment's folder
+        self.notes: list[str] = []
 
     def error(self, message: str, keypath: KeyPath) -> InputError:
         return InputError(message, path=self.source.path, line=self.source.line_of(keypath),
@@ -622,6 +625,13 @@ def _check(lx: LoadedExperiment) -> None:
             f = lx.resolve(spec.file or spec.video)
             if not f.is_file():
                 raise lx.error(f"stimulus {key} {str(f)!r} not found", ("stimuli", sname, key))
+            home = lx.path.parent.resolve()
+            if not f.resolve().is_relative_to(home):
+                lx.notes.append(
+                    f"{lx.path}:{lx.source.line_of(('stimuli', sname, key)) or '?'}: stimulus "
+                    f"{sname!r}: {spec.file or spec.video!r} is outside the experiment's folder "
+                    f"({f.resolve()}); a copy of the folder will not carry it (each session "
+                    "records its path and checksum)")
         elif spec.is_camera:
             pass                                # a camera is looked for when the trial runs
         else:

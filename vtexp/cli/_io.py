@@ -18,6 +18,11 @@ def err(msg: str) -> None:
     print(f"vtexp: error: {msg}", file=sys.stderr, flush=True)
 
 
+def note(msg: str) -> None:
+    """Something accepted that the user should hear about: one line on stderr."""
+    print(f"vtexp: note: {msg}", file=sys.stderr, flush=True)
+
+
 def quote(arg: str) -> str:
     """``arg`` as a command line to paste: for a POSIX shell, or for Windows' ``cmd.exe``
     (which does not read single quotes)."""

@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from ._io import out
+from ._io import note, out
 
 
 def cmd_validate(args) -> int:
@@ -16,6 +16,8 @@ def cmd_validate(args) -> int:
 
     for f in args.files:
         lx = load_experiment(f)
+        for n in lx.notes:
+            note(n)
         conds = compile_conditions(lx)
         exp = lx.experiment
         n = len(conds) * exp.design.repetitions

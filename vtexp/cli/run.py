@@ -21,7 +21,7 @@ from datetime import datetime
 from pathlib import Path
 
 from ..errors import InputError
-from ._io import out, program, quote
+from ._io import note, out, program, quote
 from .prompts import (ask_experimenter, ask_participant, ask_participant_info, ask_session,
                       place_object, status_of, yes)
 
@@ -313,6 +313,8 @@ def cmd_run(args) -> int:
         raise InputError("asks the experimenter at a terminal before it plays; standard "
                          "input is not a terminal", key="--test-pulse")
     lx, conds = load_and_compile(args.file)
+    for n in lx.notes:
+        note(n)
     _report_dead(args, lx)
     participant, session, resume = _who_and_which(args, lx)
     device_spec, responder_spec = _specs(args, lx, participant, session, resume)

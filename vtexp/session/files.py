@@ -12,6 +12,7 @@ from pathlib import Path
 from .. import __version__, bids
 from ..clock import Clock, iso
 from ..experiment import LoadedExperiment
+from ..log import sha256_file
 
 FORMAT_VERSION = 2     # 2: the BIDS layout (record in sourcedata/vtexp/)
 
@@ -168,6 +169,7 @@ def new_record(setup, info, responder, clock: Clock) -> dict:
                        for c in setup.conditions],
         "experiment_file": {"path": str(Path(lx.path).resolve()), "sha256": lx.sha256,
                             "text": lx.source.text},
+        "stimulus_files": stimulus_files(lx),
         "experiment_loaded": exp.model_dump(mode="json"),
         "device": info.model_dump(mode="json"),
         "device_profile": setup.profile.model_dump(mode="json"),
@@ -192,3 +194,15 @@ def new_record(setup, info, responder, clock: Clock) -> dict:
 def exact_level(v: float | None) -> str | None:
     """A level as the log keeps it: every digit (``repr``), so that it reads back equal."""
     return None if v is None else repr(float(v))
+
+
+def stimulus_files(lx: LoadedExperiment) -> dict[str, dict[str, str]]:
+    """The image and video files the experiment's stimuli are read from: path and SHA-256,
+    by stimulus name (what a reader of the data years later needs to find them again)."""
+    out = {}
+    for name, spec in lx.experiment.stimuli.items():
+        f = spec.file or spec.video
+        if f is not None:
+            p = lx.resolve(f)
+            out[name] = {"path": str(p.resolve()), "sha256": sha256_file(p)}
+    return out
