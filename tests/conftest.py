@@ -13,6 +13,12 @@ import pytest
 
 from inprocess import run_in_process
 
+
+def pytest_addoption(parser):
+    parser.addoption("--fuzz-long", type=int, default=0, metavar="N",
+                     help="tests/test_fuzz.py: N damaged inputs per family instead of the "
+                          "few of every run (bench/fuzz.py prints the same as a table)")
+
 ROOT = Path(__file__).resolve().parents[1]
 GRID = ROOT / "experiments" / "duration_interval_grid.yaml"
 
