@@ -9,7 +9,7 @@ import shutil
 import pandas as pd
 import pytest
 
-from conftest import GRID, write_experiment, session_record
+from conftest import GRID, ROOT, write_experiment, session_record
 from vtexp.analysis.pipeline import apa_anova, format_p
 
 APA = re.compile(r"F\(\d+(\.\d\d)?, \d+(\.\d\d)?\) = \d+\.\d\d, p (< \.001|= \.\d{3}), η²p = "
@@ -419,3 +419,36 @@ def test_groups_from_the_participants_table_give_a_mixed_anova(cli, data, tmp_pa
     assert list(anova["effect"]) == ["group", "shape", "group:shape"]
     assert (anova["df2"] == anova["df1"] * 1).all()            # 3 participants − 2 groups
     assert len(pd.read_csv(rep / "posthoc_1.csv")) == 1
+
+
+STUDIES = sorted((ROOT / "experiments").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("study", STUDIES, ids=[p.stem for p in STUDIES])
+def test_a_pilot_of_two_with_a_condition_everyone_got_right_analyses(cli, tmp_path, study):
+    """What a lab analyses first: one participant who stopped early and one who answered
+    every question right (where a question has no right answer, the same answer
+    throughout), in each study. The tables,
+    figures and report are written; what cannot be tested is named as skipped, with why;
+    no effect size or interval is a crash."""
+    from vtexp.experiment import load_experiment
+    data = tmp_path / "data"
+    asked = load_experiment(study).experiment.asked()
+    if all(q.correct is not None for q in asked):
+        first, second = "scripted:accuracy=0.7", "scripted:correct"
+    else:           # a rating, or a percept with no right answer: one answer throughout
+        (tmp_path / "same.txt").write_text("".join(f"{q.options[0]}\n" for q in asked) * 16)
+        first, second = "scripted:random", f"scripted:answers={tmp_path / 'same.txt'}"
+    for p, responder, more in (("01", first, ["--max-trials", "8"]),
+                               ("02", second, ["--max-trials", "16"])):
+        r = cli("run", str(study), "-p", p, "--responder", responder, "--data", str(data),
+                "--quiet", *more)
+        assert r.returncode == 0, r.stderr
+    out = tmp_path / "out"
+    r = cli("analyze", *data.iterdir(), "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    report = next(out.rglob("report.md")).read_text(encoding="utf-8")
+    assert (next(out.rglob("report.html"))).stat().st_size > 1000
+    assert "2 participant" in report or "participants: 2" in report or "| 2 |" in report, \
+        report[:1500]
