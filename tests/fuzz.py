@@ -11,7 +11,8 @@ outcome is one of:
 
 - ``refused``: a non-zero exit with ``vtexp: error:`` on stderr and no traceback;
 - ``accepted``: exit 0, and the output passes the family's integrity check (an
-  experiment or coding runs a two-trial session whose log holds two trials; an image
+  experiment or coding runs a two-trial session that logs its trials, their stimuli
+  played within :data:`MAX_PLAYED_S` of the session's start; an image
   encodes to a schedule within the device's limits; a dataset's analysis either gives
   the numbers of the undamaged dataset or says on stderr what it found);
 - ``traceback``: an exception escaped (a bug), ``hang``: no end within the time limit,
@@ -32,6 +33,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pandas as pd
+
 from inprocess import run_in_process
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,6 +52,9 @@ NASTY = ["", "-1", "0", "-0", "1e309", "-1e309", "1e12", "1e-300", ".nan", ".inf
 NASTY_CELLS = ["", "NA", "nan", "inf", "-inf", "x", "1e400", "-1", "0", "1.5", "maybe",
                "True", "\"", "a\tb", "99999999999999999999", "\u00a0", "1,5", " 1 "]
 OUTCOMES = ("refused", "accepted", "traceback", "hang", "silent")
+#: an accepted experiment's first two trials play their stimuli within this (seconds): an
+#: SOA of 10^9 ms is damage, however safe each pulse is
+MAX_PLAYED_S = 600.0
 
 
 @dataclass
@@ -274,8 +280,15 @@ def _session_runs(case: Case, exp: Path, work: Path) -> None:
         return
     logs = list(data.rglob("*_beh.tsv"))
     rows = len(logs[0].read_text(encoding="utf-8").splitlines()) - 1 if logs else 0
+    longest = 0.0
+    for ev in data.rglob("*_events.tsv"):
+        d = pd.read_csv(ev, sep="\t", na_values="n/a")
+        if len(d):
+            longest = max(longest, float((d["onset"] + d["duration"]).max()))
     if rows < 1:
         case.outcome, case.detail = "silent", f"session accepted but {rows} trials logged"
+    elif not longest < MAX_PLAYED_S:            # NaN included
+        case.outcome, case.detail = "silent", f"a stimulus playing until {longest} s"
     else:
         case.outcome = "accepted"
 
