@@ -138,8 +138,19 @@ def text_overlaps(fig) -> list[tuple[str, str]]:
         bb = t.get_window_extent(r)
         if bb.width > 0 and bb.height > 0:
             boxes.append((t.get_text(), bb, _corners(t, r)))
-    return [(a[0], b[0]) for i, a in enumerate(boxes) for b in boxes[i + 1:]
-            if a[1].overlaps(b[1]) and _convex_overlap(a[2], b[2])]
+    if not boxes:
+        return []
+    # the boxes' overlaps as matplotlib's Bbox.overlaps has them (edges touching count),
+    # every pair at once; then the rotated outlines of the pairs whose boxes meet
+    import numpy as np
+    ext = np.array([bb.extents for _, bb, _ in boxes])
+    x0, x1 = np.minimum(ext[:, 0], ext[:, 2]), np.maximum(ext[:, 0], ext[:, 2])
+    y0, y1 = np.minimum(ext[:, 1], ext[:, 3]), np.maximum(ext[:, 1], ext[:, 3])
+    meet = ((x0[:, None] <= x1[None, :]) & (x0[None, :] <= x1[:, None])
+            & (y0[:, None] <= y1[None, :]) & (y0[None, :] <= y1[:, None]))
+    pairs = zip(*np.nonzero(np.triu(meet, k=1)))
+    return [(boxes[i][0], boxes[j][0]) for i, j in pairs
+            if _convex_overlap(boxes[i][2], boxes[j][2])]
 
 
 def measure_figure(fig, dpi: float | None) -> dict:
