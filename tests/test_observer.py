@@ -176,7 +176,7 @@ def test_simulated_power_matches_the_paired_t_test_power(tmp_path):
     t_crit = stats.t.ppf(1 - alpha / 2, n - 1)
     nc = dz * math.sqrt(n)
     analytic = (1 - stats.nct.cdf(t_crit, n - 1, nc)) + stats.nct.cdf(-t_crit, n - 1, nc)
-    res = run_power(p, n, 600, alpha=alpha, seed=11, workers=2)
+    res = run_power(p, n, 600, alpha=alpha, seed=11, workers=1)
     row = res.table.iloc[0]
     assert 0.15 < analytic < 0.95, analytic          # the check must have room either way
     se = math.sqrt(analytic * (1 - analytic) / 600)
@@ -188,7 +188,7 @@ def test_the_smallest_n_reaches_the_target_and_the_one_below_does_not(tmp_path):
     from vtexp.simulate import smallest_n
     p = tmp_path / "paired.yaml"
     p.write_text(PAIRED, encoding="utf-8")
-    table, results = smallest_n(p, 0.8, 60, seed=2, n_max=64, workers=2)
+    table, results = smallest_n(p, 0.8, 60, seed=2, n_max=64, workers=1)
     row = table.iloc[0]
     n = int(row["smallest_n"])
     assert n in results and row["power"] >= 0.8
