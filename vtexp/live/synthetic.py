@@ -83,8 +83,9 @@ def true_centroid(img: np.ndarray) -> tuple[float, float]:
     w = np.abs(g - bg)
     w[w < 2.0] = 0.0
     total = w.sum()
-    rows, cols = np.indices(g.shape)
-    return float((w * rows).sum() / total), float((w * cols).sum() / total)
+    rows = w.sum(axis=1) @ np.arange(w.shape[0], dtype=np.float64)
+    cols = w.sum(axis=0) @ np.arange(w.shape[1], dtype=np.float64)
+    return float(rows / total), float(cols / total)
 
 
 def write_video(path: str | Path, kind: str = "rectangle", *, seconds: float = 5.0,
