@@ -117,6 +117,12 @@ def write_gif(frames: list[np.ndarray], path: str | Path, *, frame_ms: float = 5
     from PIL import Image       # for GIFs only: 'vtexp encode' without --gif needs no Pillow
 
     cv = cv2()
-    images = [Image.fromarray(cv.cvtColor(f, cv.COLOR_BGR2RGB)) for f in frames]
+    rgb = [Image.fromarray(cv.cvtColor(f, cv.COLOR_BGR2RGB)) for f in frames]
+    # One palette for the whole animation, from the colours of up to 8 frames spread over
+    # it, each frame mapped to it: a palette of its own for every frame (Pillow's default)
+    # took most of the time, for frames drawn in the same few colours.
+    sample = np.concatenate([np.asarray(im) for im in rgb[::max(1, len(rgb) // 8)]])
+    palette = Image.fromarray(sample).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
+    images = [im.quantize(palette=palette, dither=Image.Dither.NONE) for im in rgb]
     images[0].save(str(path), save_all=True, append_images=images[1:],
-                   duration=int(round(frame_ms)), loop=0, optimize=True)
+                   duration=int(round(frame_ms)), loop=0, optimize=False)
