@@ -162,12 +162,14 @@ def _edit(**changes):
     (lambda m: m.pop("experiment_loaded"), "experiment_loaded is missing"),
     (_edit(experiment_loaded={"name": 3}), "experiment the session ran (no title)"),
     (lambda m: m["experiment_loaded"].update(factors="x"), "its factors are not a table"),
+    (lambda m: next(iter(m["experiment_loaded"]["factors"].values()))["levels"].__setitem__(
+        0, {"a": None}), "are not a list of level names"),        # found by tests/fuzz.py
     (_edit(checksums="abc"), "checksums is 'abc', not a table of file checksums"),
     ("nested", "nested too deeply"),
     ("digits", "Exceeds the limit (4300 digits)"),
     ("tab", "line 4 has 19 cells where the header has 18 (a tab too many?)"),
 ], ids=["session", "experiment", "participant", "no-experiment", "no-title", "factors",
-        "checksums", "nested", "digits", "tab"])
+        "levels", "checksums", "nested", "digits", "tab"])
 def test_a_damaged_session_record_or_log_is_one_message(cli, data, tmp_path, damage, says):
     """What analyze met with a traceback (ValueError, StopIteration, KeyError,
     AttributeError, LinAlgError, RecursionError, ParserError)."""

@@ -183,6 +183,12 @@ def _check_fields(meta: dict, path: Path) -> None:
                                               for k, f in factors.items())):
         raise bad("experiment_loaded", "the experiment the session ran (its factors are not "
                   "a table of factors)")
+    for name, f in factors.items():
+        levels = f.get("levels")
+        if not (isinstance(levels, (list, dict)) and levels
+                and all(isinstance(v, str) for v in levels)):
+            raise bad("experiment_loaded", f"the experiment the session ran (the levels of "
+                      f"factor {name[:40]!r} are not a list of level names)")
     if not isinstance(loaded.get("analysis") or {}, (dict, list)):
         raise bad("experiment_loaded", "the experiment the session ran (its analysis: is not "
                   "a table)")
