@@ -14,7 +14,8 @@ outcome is one of:
   experiment or coding runs a two-trial session that logs its trials, their stimuli
   played within :data:`MAX_PLAYED_S` of the session's start; an image
   encodes to a schedule within the device's limits; a dataset's analysis either gives
-  the numbers of the undamaged dataset or says on stderr what it found);
+  the numbers of the undamaged dataset or says on stderr what it found, a warning or
+  note the undamaged one does not give);
 - ``traceback``: an exception escaped (a bug), ``hang``: no end within the time limit,
   ``silent``: accepted, but the integrity check failed.
 
@@ -170,8 +171,15 @@ def mutate_table(text: str, sep: str, rng: random.Random, said: list[str]) -> st
 
 
 def _json_nasty(rng: random.Random):
-    return rng.choice([None, "", "abc", -1, 0, 1.5, 10 ** 5000 if rng.random() < 0.1 else 1e308,
+    return rng.choice([None, "", "abc", -1, 0, 1.5, HUGE if rng.random() < 0.1 else 1e308,
                        [], {}, [1, 2], {"a": None}, True, "../../x", 5])
+
+
+HUGE = "<a number of 5,000 digits>"        # put in the text after json.dumps
+
+
+def _dumps(obj) -> str:
+    return json.dumps(obj, indent=2).replace(json.dumps(HUGE), "9" * 5000)
 
 
 def mutate_json(text: str, rng: random.Random, said: list[str]) -> str:
@@ -217,10 +225,10 @@ def mutate_json(text: str, rng: random.Random, said: list[str]) -> str:
         old = sys.getrecursionlimit()
         sys.setrecursionlimit(max(old, 10000))
         try:
-            return json.dumps(obj, indent=2)
+            return _dumps(obj)
         finally:
             sys.setrecursionlimit(old)
-    return json.dumps(obj, indent=2)
+    return _dumps(obj)
 
 
 def mutate_text(text: str, kind: str, rng: random.Random, said: list[str]) -> str:
@@ -415,21 +423,35 @@ def make_dataset(work: Path) -> Path:
     return work / "data" / "mini"
 
 
-def _numbers(out: Path) -> dict[str, str]:
-    """The analysis's tables (CSV files), the text that the numbers are in."""
-    return {p.name: p.read_text(encoding="utf-8") for p in sorted(out.rglob("*.csv"))}
+def _numbers(out: Path, dataset: Path) -> dict[str, str]:
+    """The analysis's tables (CSV files), the text that the numbers are in, with the
+    dataset's and the output's folders written as <DATASET> and <OUT>."""
+    return {p.name: p.read_text(encoding="utf-8").replace(str(dataset), "<DATASET>")
+            .replace(str(out), "<OUT>") for p in sorted(out.rglob("*.csv"))}
 
 
-def dataset_reference(dataset: Path, work: Path) -> dict[str, str]:
+def _said(stderr: str) -> set[str]:
+    """The warnings and notes on stderr, their numbers blanked ("2 of these sessions" and
+    "1 of these sessions" are the same message)."""
+    return {re.sub(r"\d+(\.\d+)?", "#", ln) for ln in stderr.splitlines()
+            if re.match(r"vtexp: (warning|note):", ln, re.I)}
+
+
+def dataset_reference(dataset: Path, work: Path) -> tuple[dict[str, str], set[str]]:
+    """The undamaged dataset's analysis: its tables, and what it says on stderr (that its
+    sessions are simulated, a singular fit)."""
     out = work / "reference"
     r = run_in_process("analyze", dataset, "--out", out)
     assert r.returncode == 0, r.stderr
-    return _numbers(out)
+    return _numbers(out, dataset), _said(r.stderr)
 
 
-def dataset_case(seed: int, work: Path, dataset: Path, reference: dict[str, str]) -> Case:
+def dataset_case(seed: int, work: Path, dataset: Path,
+                 reference: tuple[dict[str, str], set[str]]) -> Case:
     """A file of a dataset damaged; ``vtexp analyze`` must refuse it, say on stderr what
-    it found, or give the undamaged dataset's numbers."""
+    it found (a warning or note the undamaged dataset's analysis does not give), or give
+    the undamaged dataset's numbers."""
+    numbers, said = reference
     rng = random.Random(seed)
     case = Case("dataset", seed)
     copy = work / "mini"
@@ -446,10 +468,11 @@ def dataset_case(seed: int, work: Path, dataset: Path, reference: dict[str, str]
     r = _cli("analyze", copy, "--out", out)
     if not _judge(case, r):
         return case
-    if _numbers(out) == reference or re.search(r"vtexp: (warning|note):", r.stderr):
+    got = _numbers(out, copy)
+    if got == numbers or _said(r.stderr) - said:
         case.outcome = "accepted"
     else:
-        changed = [k for k, v in _numbers(out).items() if reference.get(k) != v]
+        changed = [k for k, v in got.items() if numbers.get(k) != v]
         case.outcome = "silent"
         case.detail = f"other numbers ({', '.join(changed[:3]) or 'tables missing'}), nothing said"
     return case

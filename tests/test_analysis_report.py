@@ -218,6 +218,28 @@ def test_a_pilot_of_one_finished_and_one_unfinished_session_gets_its_report(cli,
     assert not list(d.glob("anova_*.csv"))
 
 
+def test_log_values_a_record_does_not_declare_as_levels_are_said(cli, data, tmp_path):
+    """A record whose factor's first level was edited: the tables changed (the log's
+    level analysed as one of its own) and nothing was said (found by tests/fuzz.py)."""
+    copy = tmp_path / "copy"
+    shutil.copytree(data, copy)
+    rec = session_record(copy / "sub-02" / "ses-1")
+    meta = json.loads(rec.read_text())
+    name, factor = next(iter(meta["experiment_loaded"]["factors"].items()))
+    levels = factor["levels"]
+    first = next(iter(levels))
+    if isinstance(levels, dict):
+        levels["edited"] = levels.pop(first)
+    else:
+        levels[0] = "edited"
+    rec.write_text(json.dumps(meta))
+    r = cli("analyze", str(copy), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    assert f"factor {name!r}: the trial log holds {first!r}, which the session record " \
+           "does not declare as a level" in r.stderr, r.stderr
+    assert f"vtexp: note: {copy / 'sub-02' / 'ses-1'}" in r.stderr, r.stderr
+
+
 def test_a_dataset_copied_into_a_backup_folder_is_not_counted_twice(cli, data, tmp_path):
     """Every session was counted twice (one participant with 192 trials), or the model
     could not be fitted: each session found in two folders is named."""

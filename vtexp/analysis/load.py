@@ -469,6 +469,13 @@ def combine_sessions(sessions: list[SessionData], *, include_practice: bool = Fa
     order: dict[str, list[str]] = {}
     for s in sessions:
         for name, levels in s.levels.items():
+            logged = s.trials[name].dropna().unique() if name in s.trials else []
+            extra = sorted({str(v) for v in logged} - {str(v) for v in levels})
+            if extra:
+                notes.append(f"{s.dir}: factor {name!r}: the trial log holds "
+                             f"{', '.join(map(repr, extra[:5]))}, which the session record "
+                             f"does not declare as a level ({', '.join(map(str, levels[:8]))}); "
+                             "analysed as a level of its own (the record or the log edited?)")
             known = order.setdefault(name, [])
             known.extend(lv for lv in levels if lv not in known)
     for name, levels in order.items():
