@@ -165,11 +165,17 @@ def _edit(**changes):
     (lambda m: next(iter(m["experiment_loaded"]["factors"].values()))["levels"].__setitem__(
         0, {"a": None}), "are not a list of level names"),        # found by tests/fuzz.py
     (_edit(checksums="abc"), "checksums is 'abc', not a table of file checksums"),
+    # found by tests/fuzz.py: an analysis: section nested in lists (AttributeError), the
+    # planned trial count gone (the sessions table changed without a word)
+    (lambda m: m["experiment_loaded"].update(analysis=[[{"a": 1}]]),
+     "its analysis: is not a table"),
+    (lambda m: m.pop("n_trials_planned"), "n_trials_planned is missing, not the number of "
+                                          "trials planned"),
     ("nested", "nested too deeply"),
     ("digits", "Exceeds the limit (4300 digits)"),
     ("tab", "line 4 has 19 cells where the header has 18 (a tab too many?)"),
 ], ids=["session", "experiment", "participant", "no-experiment", "no-title", "factors",
-        "levels", "checksums", "nested", "digits", "tab"])
+        "levels", "checksums", "analysis-list", "no-planned", "nested", "digits", "tab"])
 def test_a_damaged_session_record_or_log_is_one_message(cli, data, tmp_path, damage, says):
     """What analyze met with a traceback (ValueError, StopIteration, KeyError,
     AttributeError, LinAlgError, RecursionError, ParserError)."""
@@ -282,7 +288,12 @@ def _without(col):
     (_cells("trial", "x", [2]), "line 4: trial is 'x', not a trial number"),
     (_cells("correct", "maybe"), "line 2: correct is 'maybe', not 0, 1 or n/a (96 such rows)"),
     (_without("shape"), "lacks the column(s) 'shape' of the factors its session record"),
-], ids=["trial-blank", "trial-x", "correct-maybe", "no-factor-column"])
+    # found by tests/fuzz.py (OverflowError, TypeError)
+    (_cells("repetition", "inf", [1]), "line 3: repetition is 'inf', not a whole number"),
+    (_cells("replays", "1.5", [0]), "line 2: replays is '1.5', not a whole number or n/a"),
+    (_cells("rt_s", "-inf", [0]), "line 2: rt_s is '-inf', not a number or n/a"),
+], ids=["trial-blank", "trial-x", "correct-maybe", "no-factor-column", "repetition-inf",
+        "replays-fraction", "rt-infinite"])
 def test_a_trial_log_changed_by_hand_is_refused_not_analysed(cli, data, tmp_path, damage, says):
     """Each was analysed without a word: a trial without its number, a participant whose
     every answer was neither right nor wrong (gone from the rates, still in the counts),

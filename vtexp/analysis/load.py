@@ -41,6 +41,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from ..errors import InputError
@@ -189,9 +190,12 @@ def _check_fields(meta: dict, path: Path) -> None:
                 and all(isinstance(v, str) for v in levels)):
             raise bad("experiment_loaded", f"the experiment the session ran (the levels of "
                       f"factor {name[:40]!r} are not a list of level names)")
-    if not isinstance(loaded.get("analysis") or {}, (dict, list)):
+    if not isinstance(loaded.get("analysis") or {}, dict):
         raise bad("experiment_loaded", "the experiment the session ran (its analysis: is not "
                   "a table)")
+    planned = meta.get("n_trials_planned")
+    if not (type(planned) is int and planned >= 0):
+        raise bad("n_trials_planned", "the number of trials planned")
 
 
 def read_record(path: Path | str) -> SessionData:
@@ -301,14 +305,19 @@ def typed_trials(df: pd.DataFrame, s: SessionData) -> pd.DataFrame:
             continue
         raw = df[col]
         num = pd.to_numeric(raw, errors="coerce")
-        bad = raw.notna() & num.isna()
+        bad = raw.notna() & (num.isna() | ~np.isfinite(num.astype(float)))
+        whole = col in ("trial", "repetition", "replays", "n_pulses")
         if col in ("practice", "correct"):
             bad |= num.notna() & ~num.isin([0, 1])
         elif col == "trial":
             bad |= raw.isna() | (num.notna() & ((num < 1) | (num % 1 != 0)))
+        elif whole:
+            bad |= num.notna() & ((num < 0) | (num % 1 != 0))
         if bad.any():
             i = int(bad.to_numpy().argmax())
             what = {"practice": "0 or 1", "correct": "0, 1 or n/a", "trial": "a trial number"}
+            if whole and col != "trial":
+                what[col] = "a whole number or n/a"
             value = raw.iloc[i] if raw.notna().iloc[i] else "n/a"
             raise InputError(f"line {i + 2}: {col} is {value!r}, not "
                              f"{what.get(col, 'a number or n/a')}"
