@@ -16,8 +16,8 @@ def cmd_validate(args) -> int:
 
     for f in args.files:
         lx = load_experiment(f)
-        for n in lx.notes:
-            note(n)
+        for msg in lx.notes:
+            note(msg)
         conds = compile_conditions(lx)
         exp = lx.experiment
         n = len(conds) * exp.design.repetitions

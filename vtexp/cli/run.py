@@ -313,8 +313,8 @@ def cmd_run(args) -> int:
         raise InputError("asks the experimenter at a terminal before it plays; standard "
                          "input is not a terminal", key="--test-pulse")
     lx, conds = load_and_compile(args.file)
-    for n in lx.notes:
-        note(n)
+    for msg in lx.notes:
+        note(msg)
     _report_dead(args, lx)
     participant, session, resume = _who_and_which(args, lx)
     device_spec, responder_spec = _specs(args, lx, participant, session, resume)
