@@ -6,7 +6,6 @@ run, resumed and analysed through the CLI."""
 from __future__ import annotations
 
 import math
-import shutil
 
 import numpy as np
 import pandas as pd
