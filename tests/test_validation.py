@@ -149,6 +149,22 @@ def test_a_stimulus_file_outside_the_experiments_folder_is_said_and_recorded(
     assert rec["stimulus_files"] == {"square": {"path": str(image), "sha256": digest}}
 
 
+@pytest.mark.parametrize("design, key, says", [
+    ("repetitions: 10000\n  practice: 1000", "design.repetitions",
+     "2 conditions x 10000 repetitions + 1000 practice = 21,000 trials in one session, "
+     "more than a person can give (at most 20,000)"),
+    ("repetitions: 2\n  iti_ms: 600000\n  practice: 100", "design.iti_ms",
+     "104 trials with iti_ms 600000 pause 17.3 hours in one session (at most 12)"),
+])
+def test_a_session_no_person_could_sit_is_refused_before_it_runs(tmp_path, minimal_yaml,
+                                                                   design, key, says):
+    """Each passed validation, planning and the safety check as a session of days."""
+    text = minimal_yaml.replace("repetitions: 2\n  iti_ms: 0", design)
+    with pytest.raises(InputError) as e:
+        load_and_compile(write_experiment(tmp_path, text))
+    assert e.value.key == key and says in e.value.message, e.value.message
+
+
 def test_unknown_device(tmp_path, minimal_yaml):
     e = error_of(tmp_path, minimal_yaml.replace("device: vest_6x8", "device: vest_9x9"))
     assert e.key == "device" and e.line == 3 and "known profiles" in e.message

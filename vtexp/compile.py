@@ -164,6 +164,7 @@ def compile_conditions(lx: LoadedExperiment, profile: DeviceProfile | None = Non
     images: dict[str, np.ndarray] = {}
     patterns: dict[tuple, Pattern] = {}
     conditions = enumerate_conditions(lx)
+    _check_session_length(lx, len(conditions))
     for c in conditions:
         if c.camera:
             _check_camera_condition(lx, c, profile)
@@ -254,6 +255,31 @@ def _condition_keypath(lx: LoadedExperiment, c: Condition) -> tuple:
         if lx.experiment.factors[n].sets == "coding":
             return ("factors", n, "levels", lvl)
     return ("coding", "params")
+
+
+#: the most trials one session of a person may plan, and the longest its pauses between
+#: trials alone may last: a day's testing, far beyond any study of the papers (hundreds of
+#: trials, an hour or two); more is a slip of a key, said before anything runs
+MAX_SESSION_TRIALS = 20_000
+MAX_SESSION_PAUSES_H = 12.0
+
+
+def _check_session_length(lx: LoadedExperiment, n_conditions: int) -> None:
+    d = lx.experiment.design
+    if lx.experiment.adaptive is not None:      # a track's trials are capped by its stop rule
+        return
+    trials = n_conditions * d.repetitions + d.practice
+    if trials > MAX_SESSION_TRIALS:
+        raise lx.error(f"{n_conditions} conditions x {d.repetitions} repetitions"
+                       + (f" + {d.practice} practice" if d.practice else "")
+                       + f" = {trials:,} trials in one session, more than a person can give "
+                       f"(at most {MAX_SESSION_TRIALS:,}); spread them over sessions",
+                       ("design", "repetitions"))
+    hours = trials * d.iti_ms / 3.6e6
+    if hours > MAX_SESSION_PAUSES_H:
+        raise lx.error(f"{trials:,} trials with iti_ms {d.iti_ms:g} pause {hours:,.1f} hours in "
+                       f"one session (at most {MAX_SESSION_PAUSES_H:g}); shorten the pause or "
+                       "spread the trials over sessions", ("design", "iti_ms"))
 
 
 def load_and_compile(path: str | Path, profile: DeviceProfile | None = None
