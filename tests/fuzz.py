@@ -3,9 +3,10 @@ each case is held to (used by ``tests/test_fuzz.py`` and ``bench/fuzz.py``).
 
 A case starts from a real input (an experiment of ``experiments/``, a coding of
 ``protocols/codings/``, a photograph, a dataset vtexp wrote, a statistics table of
-``tests/data/``) and applies one to three mutations drawn by ``random.Random(seed)``:
-a value replaced by one of :data:`NASTY` values, a line or row deleted or doubled, a key
-or column renamed, bytes flipped, cut or inserted, a byte-order mark or CRLF line ends.
+``tests/data/``, one of them published data) and applies one to three mutations drawn
+by ``random.Random(seed)``: a value replaced by one of :data:`NASTY` values, a line or
+row deleted or doubled, a key or column renamed, bytes flipped, cut or inserted, a
+byte-order mark or CRLF line ends.
 The command a user would run on it is run in process (``tests/inprocess.py``), and the
 outcome is one of:
 
@@ -385,6 +386,9 @@ STATS_CASES = [
                       "--subject", "participant"]),
     ("grid_3x4.csv", ["friedman", "--dv", "score", "--factor", "soa",
                       "--subject", "participant"]),
+    # published data: Freeman, Heathcote, Chalmers & Hockley (2010), from R's afex
+    ("fhch2010.csv", ["rm-anova", "--dv", "correct", "--within", "stimulus", "frequency",
+                      "--subject", "id"]),
 ]
 
 
