@@ -19,6 +19,7 @@ def pytest_addoption(parser):
                      help="tests/test_fuzz.py: N damaged inputs per family instead of the "
                           "few of every run (bench/fuzz.py prints the same as a table)")
 
+
 ROOT = Path(__file__).resolve().parents[1]
 GRID = ROOT / "experiments" / "duration_interval_grid.yaml"
 

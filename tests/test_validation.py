@@ -125,7 +125,7 @@ def test_a_stimulus_file_outside_the_experiments_folder_is_said_and_recorded(
     from vtexp.stimuli import render_shape
     (tmp_path / "images").mkdir()
     (tmp_path / "exp").mkdir()
-    image = tmp_path / "images" / "square.png"
+    image = (tmp_path / "images" / "square.png").resolve()
     cv2().imwrite(str(image), render_shape(shape="square"))
     (tmp_path / "exp" / "square.png").write_bytes(image.read_bytes())
     outside = write_experiment(tmp_path / "exp", minimal_yaml.replace(
