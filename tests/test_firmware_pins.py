@@ -353,7 +353,7 @@ def test_new_amplitudes_on_running_sma_pins_change_together_just_after_the_tick(
     """Eight running trains on the eight channels of one LTC2656 get a new amplitude in
     one frame: their channels' input registers are written before the commit, and one
     transfer after the commit's tick updates all eight (written one transfer a channel
-    at the tick, the last changed some 240 us into the new trains' first pulses)."""
+    at the tick, the last changed 269 us into the new trains' first pulses)."""
     a2000, a1000 = wire.Train(2000, 5000, 1500), wire.Train(1000, 5000, 1500)
     with AvrSimulator("sma_5x5") as sim:
         link = Raw(sim.port)

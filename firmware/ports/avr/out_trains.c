@@ -17,7 +17,7 @@
  * if the pin is idle; if a train still runs on it, written to the channel's input
  * register only, and the commit's tick, after its edges, updates every channel of the
  * chips concerned from their input registers in one transfer (so the new amplitude is
- * on the pin one transfer, ~30 us, after the tick, however many channels change).
+ * on the pin one transfer, ~38 us, after the tick, however many channels change).
  *
  * LTC2656 word (32 bits for a daisy chain): 8 don't-care bits, command C3-C0,
  * address A3-A0, 12-bit code, 4 don't-care bits; command 0000 writes input register n,
@@ -398,7 +398,7 @@ void vt_out_tick(void)
         if (n_dac_xfer) {
             /* The amplitudes of trains that replace a running one on their pin, in their
              * channels' input registers since the commit: updated after this tick's
-             * edges (the first ~30 us of the new train's first pulse carry the old
+             * edges (the first ~38 us of the new train's first pulse carry the old
              * amplitude), not before (that would touch the old train). A tick that comes
              * meanwhile finds the next not yet prepared: its edges go out a tick late
              * (the fall ring keeps its falls on time). */
