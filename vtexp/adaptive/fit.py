@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from .psychometric import core, psi
+from .psychometric import core_and_slopes, psi
 
 
 @dataclass
@@ -66,37 +66,12 @@ def _aggregate(x, yes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return levels, k, n
 
 
-def _core_and_slopes(x, a, b, function):
-    """``F(x; a, b)`` and its derivatives by ``a`` and by ``b``, in closed form."""
-    if function == "weibull":
-        r = np.clip(x, 0.0, None) / a
-        with np.errstate(divide="ignore", invalid="ignore"):
-            z = np.power(r, b)
-            log_r = np.where(r > 0, np.log(np.where(r > 0, r, 1.0)), 0.0)
-        e = np.exp(-z)
-        return -np.expm1(-z), e * (-b * z / a), e * z * log_r
-    if function in ("logistic", "normal"):
-        u = b * (x - a)
-        if function == "logistic":
-            f = 0.5 * (1.0 + np.tanh(0.5 * u))
-            d = f * (1.0 - f)
-        else:
-            f = core(x, a, b, "normal")
-            d = np.exp(-0.5 * u * u) / np.sqrt(2.0 * np.pi)
-        return f, -b * d, (x - a) * d
-    if function == "gumbel":
-        w = np.power(10.0, b * (x - a) / 20.0)
-        d = np.exp(-w) * w * np.log(10.0) / 20.0
-        return -np.expm1(-w), -b * d, (x - a) * d
-    raise ValueError(f"unknown psychometric function {function!r}")
-
-
 def _nll(theta, levels, k, n, guess, function, lapse_fixed):
     """The negative log-likelihood (eq. 2-3 of Wichmann & Hill 2001a) and its gradient in
     ``(a, log b[, lapse])``: the chain rule through ``psi = g + (1 - g - lapse) F``."""
     a, b = theta[0], np.exp(theta[1])
     lam = theta[2] if lapse_fixed is None else lapse_fixed
-    f, df_da, df_db = _core_and_slopes(levels, a, b, function)
+    f, df_da, df_db = core_and_slopes(levels, a, b, function)
     scale = 1.0 - guess - lam
     raw = guess + scale * f
     p = np.clip(raw, 1e-12, 1 - 1e-12)

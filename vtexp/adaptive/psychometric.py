@@ -69,6 +69,32 @@ def core(x, threshold, slope, function: str = "weibull") -> np.ndarray:
     raise ValueError(f"unknown psychometric function {function!r}; one of {', '.join(FUNCTIONS)}")
 
 
+def core_and_slopes(x, a, b, function: str = "weibull"):
+    """``F(x; a, b)`` as :func:`core` gives it, and its derivatives by ``a`` and by ``b``
+    in closed form (the likelihood's gradient in :mod:`.fit`)."""
+    if function == "weibull":
+        r = np.clip(x, 0.0, None) / a
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.power(r, b)
+            log_r = np.where(r > 0, np.log(np.where(r > 0, r, 1.0)), 0.0)
+        e = np.exp(-z)
+        return -np.expm1(-z), e * (-b * z / a), e * z * log_r
+    if function in ("logistic", "normal"):
+        u = b * (x - a)
+        if function == "logistic":
+            f = 0.5 * (1.0 + np.tanh(0.5 * u))
+            d = f * (1.0 - f)
+        else:
+            f = core(x, a, b, "normal")
+            d = np.exp(-0.5 * u * u) / np.sqrt(2.0 * np.pi)
+        return f, -b * d, (x - a) * d
+    if function == "gumbel":
+        w = np.power(10.0, b * (x - a) / 20.0)
+        d = np.exp(-w) * w * np.log(10.0) / 20.0
+        return -np.expm1(-w), -b * d, (x - a) * d
+    raise ValueError(f"unknown psychometric function {function!r}")
+
+
 def psi(x, threshold, slope, guess=0.0, lapse=0.0, function: str = "weibull") -> np.ndarray:
     """The probability of a "yes" (or correct) answer: ``gamma + (1 - gamma - lambda) F``.
 
