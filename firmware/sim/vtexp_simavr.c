@@ -113,6 +113,9 @@ static avr_cycle_count_t lat_raised;
 static uint32_t lat_pc, lat_worst_pc;
 static uint8_t lat_running, lat_worst_vector;
 static uint64_t lat_hist[128], lat_worst, lat_worst_at;
+/* The tick handler's length, entry to return (nested interrupts included): the worst */
+static avr_cycle_count_t tick_entered;
+static uint64_t tick_len_worst, tick_len_worst_at;
 
 static void trace_line(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static void trace_line(const char *fmt, ...)
@@ -312,7 +315,16 @@ static void tick_running(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq;
     (void)param;
-    if (!value || !lat_raised)
+    if (!value) {
+        if (tick_entered && avr->cycle - tick_entered > tick_len_worst) {
+            tick_len_worst = avr->cycle - tick_entered;
+            tick_len_worst_at = tick_entered;
+        }
+        tick_entered = 0;
+        return;
+    }
+    tick_entered = avr->cycle;
+    if (!lat_raised)
         return;
     avr_cycle_count_t d = avr->cycle - lat_raised;
     lat_hist[d < 127 ? d : 127]++;
@@ -502,9 +514,11 @@ int main(int argc, char **argv)
     }
     if (trace) {
         fprintf(trace, "{\"c\":%llu,\"e\":\"tick_latency\",\"worst\":%llu,\"worst_at\":%llu,"
-                       "\"worst_pc\":%u,\"worst_vector\":%u,\"hist\":{",
+                       "\"worst_pc\":%u,\"worst_vector\":%u,\"handler_worst\":%llu,"
+                       "\"handler_worst_at\":%llu,\"hist\":{",
                 (unsigned long long)avr->cycle, (unsigned long long)lat_worst,
-                (unsigned long long)lat_worst_at, (unsigned)lat_worst_pc, lat_worst_vector);
+                (unsigned long long)lat_worst_at, (unsigned)lat_worst_pc, lat_worst_vector,
+                (unsigned long long)tick_len_worst, (unsigned long long)tick_len_worst_at);
         const char *sep = "";
         for (int d = 0; d < 128; d++)
             if (lat_hist[d]) {

@@ -98,7 +98,9 @@ class Trace:
                 elif e == "tick_latency":
                     t.tick_latency = {int(k): v for k, v in d["hist"].items()}
                     t.tick_latency_worst = {"cycles": d["worst"], "at": d["worst_at"],
-                                            "pc": d["worst_pc"], "vector": d["worst_vector"]}
+                                            "pc": d["worst_pc"], "vector": d["worst_vector"],
+                                            "handler": d.get("handler_worst"),
+                                            "handler_at": d.get("handler_worst_at")}
                 elif e == "peek":
                     t.peeks[d["a"]] = bytes.fromhex(d["d"])
                 elif e == "end":

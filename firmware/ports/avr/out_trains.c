@@ -47,23 +47,26 @@
 #define DAC_NOP 0xF
 #define DAC_ALL 0xF
 
+typedef struct {             /* a train's timing, as the tick uses it */
+    uint32_t q;              /* period: q + r / f us (10^8 / f and its remainder) */
+    uint16_t r, f, w;        /* ... f in 0.01 Hz; the width in us */
+    uint8_t wt, wrem;        /* the width: wt ticks, the last holding wrem us (1..tick) */
+} train_t;
+
 typedef struct {
     uint32_t edge;           /* time of the next edge, us (wrapping; compared by difference) */
     uint32_t rise;           /* the current pulse's rise */
-    uint32_t q;              /* period: q + r / f us */
-    uint16_t r, f, acc, w;
+    train_t t;
+    uint16_t acc;            /* the period's remainder, accumulated */
     uint8_t on, high;
     uint8_t port, mask;      /* its gate: bit mask of byte port of the gate bytes */
-    uint8_t wt, wrem;        /* the width: wt ticks, the last holding wrem us (1..tick) */
     uint8_t fall_slot;       /* the fall ring's slot of the pulse it is in */
     uint8_t fresh;           /* its train started with a pulse of its own (not mid-pulse) */
 } pin_t;
 
 typedef struct {
-    vt_setting s;
-    uint32_t q;              /* 10^8 / f and its remainder, divided out of the interrupt */
-    uint16_t r;
-    uint8_t wt, wrem;
+    uint16_t a;              /* the amplitude, mV (0: off) */
+    train_t t;               /* worked out when staged, out of the interrupt: it copies it */
 } staged_t;
 
 /* The fall ring: each pulse, when it rises, also writes its fall into the slot of the
@@ -98,7 +101,12 @@ static volatile uint8_t any_on;
 
 static volatile uint8_t pre_commit, pre_sync;   /* the set committed (out_commit.c) goes
                                                  * out at the next tick, with sync */
-static volatile uint8_t preparing;   /* the tick interrupt is preparing the next tick */
+/* The tick interrupt prepares the next tick (PREPARING) until it has left its gates in
+ * out_* (PREPARED), then returns; a tick that comes meanwhile only asks for another
+ * preparation (prepare_again), which the first runs before it returns. */
+enum { IDLE, PREPARING, PREPARED };
+static volatile uint8_t preparing;
+static volatile uint8_t prepare_again;
 volatile uint16_t vt_late_ticks;     /* ticks that came while the previous one was preparing */
 
 static void gates(uint8_t a, uint8_t c, uint8_t l, uint8_t g)
@@ -241,16 +249,10 @@ static uint16_t code_of(uint16_t mv)
  * the next rises at t0 + a period. A pulse never outlasts the width it rose with. */
 static void start_train(pin_t *p, const staged_t *st, uint32_t t0)
 {
-    const vt_setting *s = &st->s;
     uint8_t mid_pulse = p->on && p->high;
     p->on = 1;
-    p->q = st->q;
-    p->r = st->r;
-    p->f = s->f;
+    p->t = st->t;
     p->acc = 0;
-    p->w = s->w;
-    p->wt = st->wt;
-    p->wrem = st->wrem;
     p->rise = t0;
     p->fresh = !mid_pulse;
     if (!mid_pulse) {
@@ -264,13 +266,13 @@ static void start_train(pin_t *p, const staged_t *st, uint32_t t0)
 static uint8_t fall_ticks(const pin_t *p, uint32_t t)
 {
     uint32_t late = t - p->rise;
-    if (late < p->wrem)
-        return p->wt;                         /* the usual case: risen within this tick */
+    if (late < p->t.wrem)
+        return p->t.wt;                         /* the usual case: risen within this tick */
     if (late < VT_TICK_US)
-        return p->wt > 1 ? (uint8_t)(p->wt - 1) : 1;
-    if (late >= p->w)
+        return p->t.wt > 1 ? (uint8_t)(p->t.wt - 1) : 1;
+    if (late >= p->t.w)
         return 1;
-    uint16_t left = (uint16_t)(p->w - late);
+    uint16_t left = (uint16_t)(p->t.w - late);
     uint8_t j = 0;
     while (left > VT_TICK_US) {
         left -= VT_TICK_US;
@@ -282,7 +284,7 @@ static uint8_t fall_ticks(const pin_t *p, uint32_t t)
 /* Advance the pins whose edge is due by time t, the time of tick kt (its low byte): the
  * gates for that tick, each rise's fall in the ring, and the next edge. Only pins with a
  * train are visited, so a tick costs what is on, not the array. */
-static void advance(uint32_t t, uint8_t kt)
+static inline __attribute__((always_inline)) void advance(uint32_t t, uint8_t kt)
 {
     uint32_t soonest = t + 0x7FFFFFFFUL;
     pin_t **a = act, **end = act + n_act;
@@ -294,10 +296,10 @@ static void advance(uint32_t t, uint8_t kt)
                 p->high = 0;
                 g_now[p->port] &= (uint8_t)~p->mask;
                 fell[n_fell++] = p;
-                uint32_t r = p->rise + p->q;
-                p->acc += p->r;
-                if (p->acc >= p->f) {
-                    p->acc -= p->f;
+                uint32_t r = p->rise + p->t.q;
+                p->acc += p->t.r;
+                if (p->acc >= p->t.f) {
+                    p->acc -= p->t.f;
                     r++;
                 }
                 p->rise = r;
@@ -305,7 +307,7 @@ static void advance(uint32_t t, uint8_t kt)
             } else {
                 p->high = 1;
                 g_now[p->port] |= p->mask;
-                e = p->rise + p->w;
+                e = p->rise + p->t.w;
                 uint8_t at = (uint8_t)(kt + fall_ticks(p, t));
                 p->fall_slot = at & FALL_MASK;
                 cli();
@@ -373,6 +375,108 @@ static void all_pins_wiped(void)
     gates_forgotten();
 }
 
+/* The preparation of the next tick: called with interrupts off, returns with them on. */
+static void __attribute__((noinline)) prepare(void)
+{
+    uint32_t k = vt_ticks;                    /* the tick now */
+    uint8_t offs = off_count;
+    n_fell = 0;
+    sei();
+    /* The next tick: a committed set starts there, and edges due by then happen there. */
+    uint32_t t_next = vt_tick_us_lo + VT_TICK_US;             /* us, wrapping */
+    uint8_t commit = vt_commit_due(k);
+    if (commit) {
+        for (uint8_t j = 0; j < n_staged; j++) {
+            uint8_t i = staged_list[j];
+            pin_t *p = &pins[i];
+            if (!staged[i].a) {
+                pin_off(p);
+                continue;
+            }
+            if (!p->on)
+                act[n_act++] = p;
+            start_train(p, &staged[i], t_next);
+        }
+    }
+    if (commit || (any_on && (int32_t)(next_edge - t_next) <= 0))
+        advance(t_next, (uint8_t)(k + 1));    /* (inline: one call's cost less per tick) */
+    cli();
+    uint8_t late = 0, wiped = off_count != offs;
+    if (wiped) {
+        all_pins_wiped();                     /* the watchdog fired meanwhile: it stands */
+        commit = 0;
+    } else {
+        late = (uint8_t)((uint8_t)vt_ticks - (uint8_t)k);   /* ticks that came meanwhile */
+        out_a = g_now[0];
+        out_c = g_now[1];
+        out_l = g_now[2];
+        out_g = g_now[3];
+    }
+    pre_commit = commit;
+    pre_sync = commit && vt_commit_onsets;
+    preparing = PREPARED;                     /* a tick from now on finds its gates ready */
+    if (!wiped) {
+        /* What this preparation turned off is off in the gates it leaves: the ring and the
+         * hold have nothing more to do for those pins. A pin at a time, interrupts on in
+         * between: with 25 pins falling, the loop kept a tick waiting past a short
+         * interrupt. A tick meanwhile only applies gates that have them off already. */
+        for (uint8_t j = 0; j < n_fell; j++) {
+            sei();                            /* (an interrupt waits one instruction more) */
+            pin_t *p = fell[j];
+            uint8_t m = (uint8_t)~p->mask;
+            cli();
+            fall_ring[p->fall_slot][p->port] &= m;
+            held_off[p->port] &= m;
+        }
+    }
+    if (commit && late) {
+        /* The set goes out that many ticks late, and is reported then: its trains are
+         * timed from then, and a first pulse keeps its whole width (its fall moves
+         * too). No preparation runs meanwhile; a tick that would empty a fall's slot
+         * first only ends that pulse sooner. */
+        uint32_t late_us = (uint32_t)late * VT_TICK_US;
+        sei();
+        for (uint8_t j = 0; j < n_staged; j++) {
+            pin_t *p = &pins[staged_list[j]];
+            if (!p->on)
+                continue;
+            p->rise += late_us;
+            if (p->fresh && p->high) {
+                p->edge += late_us;
+                cli();
+                volatile uint8_t *slot = &fall_ring[p->fall_slot][p->port];
+                if (*slot & p->mask) {
+                    *slot &= (uint8_t)~p->mask;
+                    p->fall_slot = (uint8_t)(p->fall_slot + late) & FALL_MASK;
+                    fall_ring[p->fall_slot][p->port] |= p->mask;
+                }
+                sei();
+            }
+        }
+        cli();
+    }
+    sei();
+}
+
+/* The preparations a tick asks for: the next tick's, and one more for each tick that came
+ * meanwhile. Each runs with interrupts on, in a function of its own, so what runs with
+ * them off after the last is only the returns (a tick that comes then waits for no more
+ * than that). A set committed and not yet shown is never prepared twice: the tick that
+ * shows it prepares the next. */
+static void __attribute__((noinline)) prepare_ticks(void)
+{
+    for (;;) {
+        preparing = PREPARING;
+        prepare();
+        cli();
+        if (!prepare_again || pre_commit)
+            break;
+        prepare_again = 0;
+    }
+    prepare_again = 0;
+    preparing = IDLE;
+}
+
 void vt_out_tick(void)
 {
     /* the falls due at this tick, from the ring, whatever the preparation did */
@@ -418,90 +522,15 @@ void vt_out_tick(void)
         all_pins_off();
     }
     if (preparing) {
-        if (vt_late_ticks != 0xFFFF)
+        /* The tick before is still preparing: this tick's preparation comes after it,
+         * before that interrupt returns. If the gates for this tick were not ready, its
+         * edges go out a tick late (the fall ring keeps falls on time). */
+        if (preparing == PREPARING && vt_late_ticks != 0xFFFF)
             vt_late_ticks++;
-        return;                               /* the previous tick is still preparing: this
-                                               * tick's work (a set due, edges) is done at
-                                               * the next, late rather than lost */
+        prepare_again = 1;
+        return;
     }
-    preparing = 1;
-    uint8_t offs = off_count;
-    n_fell = 0;
-    sei();
-    /* The next tick: a committed set starts there, and edges due by then happen there. */
-    uint32_t t_next = vt_tick_us_lo + VT_TICK_US;             /* us, wrapping */
-    uint8_t commit = vt_commit_due(k);
-    if (commit) {
-        for (uint8_t j = 0; j < n_staged; j++) {
-            uint8_t i = staged_list[j];
-            pin_t *p = &pins[i];
-            if (!staged[i].s.a) {
-                pin_off(p);
-                continue;
-            }
-            if (!p->on)
-                act[n_act++] = p;
-            start_train(p, &staged[i], t_next);
-        }
-        advance(t_next, (uint8_t)(k + 1));
-    } else if (any_on && (int32_t)(next_edge - t_next) <= 0) {
-        advance(t_next, (uint8_t)(k + 1));
-    }
-    cli();
-    uint8_t late = 0, wiped = off_count != offs;
-    if (wiped) {
-        all_pins_wiped();                     /* the watchdog fired meanwhile: it stands */
-        commit = 0;
-    } else {
-        late = (uint8_t)((uint8_t)vt_ticks - (uint8_t)k);   /* ticks that came meanwhile */
-        out_a = g_now[0];
-        out_c = g_now[1];
-        out_l = g_now[2];
-        out_g = g_now[3];
-    }
-    pre_commit = commit;
-    pre_sync = commit && vt_commit_onsets;
-    if (!wiped) {
-        /* What this preparation turned off is off in the gates it leaves: the ring and the
-         * hold have nothing more to do for those pins. A pin at a time, interrupts on in
-         * between: with 25 pins falling, the loop kept a tick waiting past a short
-         * interrupt. A tick meanwhile only applies gates that have them off already. */
-        for (uint8_t j = 0; j < n_fell; j++) {
-            sei();                            /* (an interrupt waits one instruction more) */
-            pin_t *p = fell[j];
-            uint8_t m = (uint8_t)~p->mask;
-            cli();
-            fall_ring[p->fall_slot][p->port] &= m;
-            held_off[p->port] &= m;
-        }
-    }
-    if (commit && late) {
-        /* The set goes out that many ticks late, and is reported then: its trains are
-         * timed from then, and a first pulse keeps its whole width (its fall moves
-         * too). No preparation runs meanwhile; a tick that would empty a fall's slot
-         * first only ends that pulse sooner. */
-        uint32_t late_us = (uint32_t)late * VT_TICK_US;
-        sei();
-        for (uint8_t j = 0; j < n_staged; j++) {
-            pin_t *p = &pins[staged_list[j]];
-            if (!p->on)
-                continue;
-            p->rise += late_us;
-            if (p->fresh && p->high) {
-                p->edge += late_us;
-                cli();
-                volatile uint8_t *slot = &fall_ring[p->fall_slot][p->port];
-                if (*slot & p->mask) {
-                    *slot &= (uint8_t)~p->mask;
-                    p->fall_slot = (uint8_t)(p->fall_slot + late) & FALL_MASK;
-                    fall_ring[p->fall_slot][p->port] |= p->mask;
-                }
-                sei();
-            }
-        }
-        cli();
-    }
-    preparing = 0;
+    prepare_ticks();                          /* (a tail call: nothing to restore after it) */
 }
 
 void vt_hal_stage_begin(void)
@@ -515,13 +544,15 @@ void vt_hal_stage(uint16_t index, const vt_setting *s)
     if (index >= N)
         return;
     staged_t *st = &staged[index];
-    st->s = *s;
+    st->a = s->a;
     if (s->a) {                               /* 32-bit divisions: here, not in the tick */
-        st->q = 100000000UL / s->f;
-        st->r = (uint16_t)(100000000UL % s->f);
+        st->t.q = 100000000UL / s->f;
+        st->t.r = (uint16_t)(100000000UL % s->f);
+        st->t.f = s->f;
+        st->t.w = s->w;
         uint16_t wt = (uint16_t)((s->w + VT_TICK_US - 1) / VT_TICK_US);
-        st->wt = (uint8_t)wt;
-        st->wrem = (uint8_t)(s->w - (wt - 1) * VT_TICK_US);
+        st->t.wt = (uint8_t)wt;
+        st->t.wrem = (uint8_t)(s->w - (wt - 1) * VT_TICK_US);
     }
     if (!(staged_mask & (1UL << index)))
         staged_list[n_staged++] = (uint8_t)index;
@@ -542,8 +573,8 @@ void vt_out_commit_prepare(void)
     for (uint8_t i = 0; i < N; i++, bit <<= 1) {
         if (!(staged_mask & bit))
             continue;
-        if (staged[i].s.a)
-            dac_want[i] = code_of(staged[i].s.a);
+        if (staged[i].a)
+            dac_want[i] = code_of(staged[i].a);
         if (!pins[i].on)
             idle |= bit;
     }
