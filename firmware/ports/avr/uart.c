@@ -21,17 +21,52 @@ void vt_uart_init(void)
     UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
 }
 
-ISR(USART0_RX_vect)
+/* A byte received: into the ring at its head, which is always free (the ring keeps one
+ * place empty), and the head moves on unless the ring is full (the byte is then dropped
+ * and counted). The same as
+ *
+ *     uint8_t h = vt_rx_head, n = h + 1;
+ *     vt_rx_ring[h] = UDR0;
+ *     if (n == vt_rx_tail) vt_uart_overruns++; else vt_rx_head = n;
+ *
+ * in assembly: the compiler's version saves nine registers and takes about 70 cycles; at
+ * 1 Mbaud a byte comes every 160, and a frame's bytes nest in the tick interrupt's
+ * preparation (out_trains.c), whose time they add to. This one takes about 45. */
+ISR(USART0_RX_vect, ISR_NAKED)
 {
-    uint8_t b = UDR0;
-    uint8_t h = vt_rx_head;
-    uint8_t n = (uint8_t)(h + 1);
-    if (n == vt_rx_tail) {
-        vt_uart_overruns++;
-        return;
-    }
-    vt_rx_ring[h] = b;
-    vt_rx_head = n;
+    __asm__ __volatile__(
+        "push r24\n\t"
+        "in r24, __SREG__\n\t"
+        "push r24\n\t"
+        "push r30\n\t"
+        "push r31\n\t"
+        "lds r30, vt_rx_head\n\t"
+        "ldi r31, 0\n\t"
+        "subi r30, lo8(-(vt_rx_ring))\n\t"
+        "sbci r31, hi8(-(vt_rx_ring))\n\t"
+        "lds r24, %[udr]\n\t"
+        "st Z, r24\n\t"
+        "lds r30, vt_rx_head\n\t"
+        "inc r30\n\t"
+        "lds r24, vt_rx_tail\n\t"
+        "cp r30, r24\n\t"
+        "breq 1f\n\t"
+        "sts vt_rx_head, r30\n\t"
+        "rjmp 2f\n"
+        "1:\n\t"
+        "lds r30, vt_uart_overruns\n\t"
+        "lds r31, vt_uart_overruns+1\n\t"
+        "adiw r30, 1\n\t"
+        "sts vt_uart_overruns+1, r31\n\t"
+        "sts vt_uart_overruns, r30\n"
+        "2:\n\t"
+        "pop r31\n\t"
+        "pop r30\n\t"
+        "pop r24\n\t"
+        "out __SREG__, r24\n\t"
+        "pop r24\n\t"
+        "reti\n\t"
+        :: [udr] "n"(_SFR_MEM_ADDR(UDR0)));
 }
 
 
