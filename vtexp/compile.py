@@ -89,8 +89,8 @@ def checked_coding_params(protocol: str, params: dict[str, Any]) -> dict[str, An
 
 def compile_stimulus(image: np.ndarray | None, profile: DeviceProfile, *, pipeline: str,
                      encoding_params: dict[str, Any], protocol: str,
-                     coding_params: dict[str, Any], pattern: Pattern | None = None
-                     ) -> tuple[Pattern, Schedule | None]:
+                     coding_params: dict[str, Any], pattern: Pattern | None = None,
+                     mask: np.ndarray | None = None) -> tuple[Pattern, Schedule | None]:
     """One stimulus on a device: ``image`` (a gray image, from a file, a camera or a
     generator) through the encoding ``pipeline`` into a Pattern (where, in what order),
     the Pattern through the coding ``protocol`` into a Schedule (when, how strong, how
@@ -111,6 +111,10 @@ def compile_stimulus(image: np.ndarray | None, profile: DeviceProfile, *, pipeli
     pattern
         The image's Pattern with these encoding parameters, if it was encoded before
         (conditions that differ only in their coding share it): it is not encoded again.
+    mask
+        The object in the image (uint8 0/1, the image's size; :mod:`vtexp.encoding.figure`):
+        the pipeline encodes it instead of finding the object itself. None: the
+        pipeline's own segmentation (right for images on a plain background).
 
     Returns
     -------
@@ -127,8 +131,9 @@ def compile_stimulus(image: np.ndarray | None, profile: DeviceProfile, *, pipeli
     """
     if pattern is None:
         fn = PIPELINES[pipeline][0]
+        extra = {} if mask is None else {"mask": mask}
         pattern = fn(image, profile.rows, profile.cols,
-                     **checked_encoding_params(pipeline, encoding_params))
+                     **checked_encoding_params(pipeline, encoding_params), **extra)
     if not pattern.points:
         return pattern, None
     fn = CODINGS[protocol][0]
@@ -143,10 +148,12 @@ def encoding_params(lx: LoadedExperiment, params: dict[str, Any]) -> dict[str, A
 
 
 def encode(lx: LoadedExperiment, image: np.ndarray, profile: DeviceProfile,
-           params: dict[str, Any]) -> Pattern:
-    """``image`` through the experiment's encoding pipeline with ``params``."""
+           params: dict[str, Any], *, mask: np.ndarray | None = None) -> Pattern:
+    """``image`` through the experiment's encoding pipeline with ``params`` (``mask``: the
+    object, if told from its background already; :func:`compile_stimulus`)."""
     fn, _ = PIPELINES[lx.experiment.encoding.pipeline]
-    return fn(image, profile.rows, profile.cols, **encoding_params(lx, params))
+    extra = {} if mask is None else {"mask": mask}
+    return fn(image, profile.rows, profile.cols, **encoding_params(lx, params), **extra)
 
 
 def code(lx: LoadedExperiment, pattern: Pattern, profile: DeviceProfile,

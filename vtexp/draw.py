@@ -70,6 +70,34 @@ def draw_pattern(pattern: Pattern, *, cell: int = 36, title: str = "") -> np.nda
     return img
 
 
+def draw_figure(image: np.ndarray, mask: np.ndarray | None, pattern_img: np.ndarray, *,
+                caption: str = "") -> np.ndarray:
+    """What vtexp took for the object, beside what the array does: ``image`` (gray or BGR)
+    with the outline of ``mask`` (uint8 0/1) in magenta (none drawn for an empty or absent
+    mask), scaled to the height of ``pattern_img`` (a :func:`draw_pattern` drawing) and
+    set at its left, ``caption`` under the image."""
+    cv = cv2()
+    img = image if image.ndim == 3 else cv.cvtColor(image, cv.COLOR_GRAY2BGR)
+    img = img.copy()
+    if mask is not None and mask.any():
+        contours, _ = cv.findContours(np.ascontiguousarray(mask, np.uint8), cv.RETR_EXTERNAL,
+                                      cv.CHAIN_APPROX_NONE)
+        width = max(2, round(max(img.shape[:2]) / 200))
+        cv.drawContours(img, contours, -1, (255, 0, 255), width, cv.LINE_AA)
+    h = pattern_img.shape[0]
+    band_h = max(24, h // 16) if caption else 0
+    scale = (h - band_h) / img.shape[0]
+    img = cv.resize(img, (max(1, round(img.shape[1] * scale)), h - band_h),
+                    interpolation=cv.INTER_AREA if scale < 1 else cv.INTER_LINEAR)
+    if caption:
+        band = np.full((band_h, img.shape[1], 3), BACKGROUND, np.uint8)
+        cv.putText(band, caption, (6, int(band_h * 0.7)), cv.FONT_HERSHEY_SIMPLEX,
+                   band_h / 48, (0, 0, 0), 1, cv.LINE_AA)
+        img = np.vstack([img, band])
+    gap = np.full((h, 12, 3), BACKGROUND, np.uint8)
+    return np.hstack([img, gap, pattern_img])
+
+
 def schedule_frames(schedule: Schedule, profile: DeviceProfile, *, cell: int = 28,
                     step_ms: float = 50.0, max_frames: int = 600) -> list[np.ndarray]:
     """Frames (BGR) of the schedule every ``step_ms``: each pin's drive at that moment."""

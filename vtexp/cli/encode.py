@@ -29,14 +29,16 @@ def _params(items: list[str] | None, flag: str) -> dict:
     return out
 
 
-def load_image(spec: str, rows: int | None = None, cols: int | None = None):
+def load_image(spec: str, rows: int | None = None, cols: int | None = None, *,
+               colour: bool = False):
     """IMAGE argument: a file, ``camera[:N]``, or ``GENERATOR:key=value,...`` (a generator
-    that draws on the array's grid gets ``rows`` x ``cols``, the device's)."""
+    that draws on the array's grid gets ``rows`` x ``cols``, the device's). ``colour``: a
+    file or a camera frame as BGR (a generator's drawing stays gray)."""
     from ..stimuli import GENERATORS, read_camera, read_image, render
 
     head, sep, rest = spec.partition(":")
     if spec == "camera" or (head == "camera" and rest.isdigit()):
-        return read_camera(int(rest or 0))
+        return read_camera(int(rest or 0), colour=colour)
     if sep and head in GENERATORS and not Path(spec).exists():
         _, model = GENERATORS[head]
         kv = _params([x for x in rest.split(",") if x], "IMAGE")
@@ -51,7 +53,33 @@ def load_image(spec: str, rows: int | None = None, cols: int | None = None):
             return render(head, kv, rows, cols)
         except ValueError as e:
             raise InputError(str(e), key=f"IMAGE ({head})") from None
-    return read_image(spec)
+    return read_image(spec, colour=colour)
+
+
+def is_generated(spec: str) -> bool:
+    """Whether IMAGE is drawn by one of vtexp's generators (a plain background by design)."""
+    from ..stimuli import GENERATORS
+
+    head, sep, _ = spec.partition(":")
+    return bool(sep) and head in GENERATORS and not Path(spec).exists()
+
+
+def find_figure(args, image):
+    """The object in ``image`` as ``--background`` says (``auto``: a photograph or camera
+    frame through the single-still figure-ground, a generator's drawing as it is; ``none``:
+    as it is; a file: the empty stage, photographed from the same place). Returns the
+    :class:`~vtexp.encoding.figure.Figure`, or None for "as it is" (the pipeline's own
+    segmentation)."""
+    from ..encoding.figure import figure_from_reference, figure_from_still
+    from ..stimuli import read_image
+
+    how = args.background
+    if how == "none" or (how == "auto" and is_generated(args.image)):
+        return None
+    if how == "auto":
+        return figure_from_still(image)
+    reference = read_image(how, colour=image.ndim == 3)
+    return figure_from_reference(image, reference)
 
 
 def cmd_encode(args) -> int:
@@ -59,10 +87,11 @@ def cmd_encode(args) -> int:
 
     from ..coding import CODINGS
     from ..compile import checked_coding_params, checked_encoding_params, compile_stimulus
-    from ..draw import draw_pattern, schedule_frames, write_gif, write_png
+    from .._cv2 import cv2
+    from ..draw import draw_figure, draw_pattern, schedule_frames, write_gif, write_png
     from ..encoding import PIPELINES
     from ..errors import UnsafeStimulus
-    from ..model import DeviceProfile
+    from ..model import DeviceProfile, Pattern
 
     if args.pipeline not in PIPELINES:
         raise InputError(f"unknown pipeline {args.pipeline!r}; available: "
@@ -72,7 +101,9 @@ def cmd_encode(args) -> int:
         raise InputError(f"unknown coding {coding!r}; available: {', '.join(sorted(CODINGS))}",
                          key="--coding")
     profile = DeviceProfile.load(args.device)
-    gray = load_image(args.image, profile.rows, profile.cols)
+    image = load_image(args.image, profile.rows, profile.cols,
+                       colour=args.background != "none")
+    gray = image if image.ndim == 2 else cv2().cvtColor(image, cv2().COLOR_BGR2GRAY)
     # Checked here too (compile_stimulus checks them as it goes), so that a mistake in
     # either set is named before the slow encoding.
     enc = _params(args.param, "--param")
@@ -88,10 +119,20 @@ def cmd_encode(args) -> int:
         err = e.errors(include_url=False)[0]
         raise InputError(f"{err['msg']}",
                          key=f"--coding-param {'.'.join(map(str, err['loc']))}") from None
+    figure = find_figure(args, image)
+    if figure is not None and figure.empty:
+        # nothing plays: the experimenter sees why, and what vtexp looked at
+        if args.png:
+            write_png(draw_figure(image, None, draw_pattern(Pattern(
+                rows=profile.rows, cols=profile.cols, points=[], pipeline=args.pipeline),
+                title=f"{args.pipeline} on {profile.name}"), caption="no object"), args.png)
+            print(f"  written: {args.png}")
+        raise InputError(f"no object to play: {figure.reason}", path=args.image)
     try:
         pattern, schedule = compile_stimulus(gray, profile, pipeline=args.pipeline,
                                              encoding_params=enc, protocol=coding,
-                                             coding_params=cod)
+                                             coding_params=cod,
+                                             mask=None if figure is None else figure.mask)
     except UnsafeStimulus as e:
         raise InputError(f"unsafe stimulus: {e}", key="--coding-param") from None
     if schedule is None:
@@ -103,6 +144,9 @@ def cmd_encode(args) -> int:
           f"{len(lines)} line(s), {len(pattern.closed)} closed, "
           f"{sum(p.vertex for p in pattern.points)} vertices, "
           f"{sum(p.corner for p in pattern.points)} corners")
+    if figure is not None:
+        print(f"  object: {figure.method} figure-ground, {int(figure.mask.sum())} pixels, "
+              f"confidence {figure.confidence:.2f}")
     if schedule is not None:
         print(f"  {coding}: {len(schedule.pulses)} pulses over {schedule.duration_ms:.0f} ms, "
               f"within {profile.name}'s safety limits")
@@ -113,7 +157,11 @@ def cmd_encode(args) -> int:
             "schedule": schedule.model_dump(mode="json") if schedule else None}, indent=2))
         print(f"  written: {args.json}")
     if args.png:
-        write_png(draw_pattern(pattern, title=f"{args.pipeline} on {profile.name}"), args.png)
+        drawing = draw_pattern(pattern, title=f"{args.pipeline} on {profile.name}")
+        if figure is not None:        # beside the image, with the object's outline found
+            drawing = draw_figure(image, figure.mask, drawing,
+                                  caption=f"object: confidence {figure.confidence:.2f}")
+        write_png(drawing, args.png)
         print(f"  written: {args.png}")
     if args.gif:
         if schedule is None:
@@ -140,7 +188,14 @@ def register(sub) -> None:
     s.add_argument("--coding-param", action="append", metavar="KEY=VALUE",
                    help="coding parameter (repeatable)")
     s.add_argument("--json", metavar="OUT", help="write pattern and schedule as JSON")
-    s.add_argument("--png", metavar="OUT", help="draw the pattern")
+    s.add_argument("--background", default="auto", metavar="auto|none|FILE",
+                   help="how the object is told from its background: auto (default: a "
+                        "photograph or camera frame through figure-ground separation, a "
+                        "generator's drawing as it is), none (the pipeline's own "
+                        "threshold, for a plain background), or FILE, a photograph of the "
+                        "empty stage from the same place")
+    s.add_argument("--png", metavar="OUT",
+                   help="draw the pattern (and the image with the object's outline found)")
     s.add_argument("--gif", metavar="OUT", help="animate the schedule")
     s.add_argument("--gif-step-ms", type=float, default=50.0, help="time per GIF frame")
     s.set_defaults(func=cmd_encode)

@@ -47,6 +47,33 @@ def summary_lines(stats, setup) -> list[str]:
     return lines
 
 
+def _background(args, source):
+    """The scene model ``--background`` asks for (None: the pipeline's own threshold)."""
+    from ..encoding.figure import BackgroundModel
+
+    how = args.background
+    if how == "none":
+        return None
+    if how == "auto":
+        out(f"live: learning the background from the first {LEARN_FRAMES} frames: keep the "
+            "stage empty until the object is asked for")
+        return BackgroundModel(learn_frames=LEARN_FRAMES)
+    if how == "capture":
+        from ..live.trial import capture_empty_stage
+        from .prompts import place_object
+
+        reference = capture_empty_stage(source, place_object if sys.stdin.isatty() else None,
+                                        stall_s=args.stall_s)
+        return BackgroundModel.from_reference(reference)
+    from ..stimuli import read_image
+
+    return BackgroundModel.from_reference(read_image(how))
+
+
+#: Frames ``--background auto`` learns the empty stage from (a second at 30 fps).
+LEARN_FRAMES = 30
+
+
 def cmd_live(args) -> int:
     from ..devices import open_device
     from ..live import LiveSetup, open_source, run_live
@@ -61,6 +88,7 @@ def cmd_live(args) -> int:
                          frame_size=_size(args.frame_size), pixel_format=args.pixel_format,
                          stall_s=args.stall_s)
     source.open()              # no camera, an unreadable video: said before anything else
+    background = _background(args, source)
     device = open_device(args.device, setup.profile)
     how = setup.play if setup.play == "hold" else f"{setup.play}, follow {setup.follow}"
     out(f"live: {source.label} -> {setup.pipeline} -> {setup.coding} ({how}) on "
@@ -74,7 +102,7 @@ def cmd_live(args) -> int:
                           duration_s=args.duration, stall_s=args.stall_s,
                           command=["vtexp", *sys.argv[1:]],
                           preview_options={"fullscreen": False},
-                          screenshot=args.screenshot)
+                          screenshot=args.screenshot, background=background)
     except KeyboardInterrupt:
         err("interrupted (Ctrl-C); every actuator is off"
             + (f"; the record in {args.record} is complete up to here" if args.record else ""))
@@ -164,6 +192,12 @@ def register(sub) -> None:
                    help="pipeline parameter (repeatable), e.g. fit=object")
     s.add_argument("--coding-param", action="append", metavar="KEY=VALUE",
                    help="coding parameter (repeatable), e.g. soa_ms=150")
+    s.add_argument("--background", default="none", metavar="none|auto|capture|FILE",
+                   help="how the object is told from the scene: none (default: the "
+                        "pipeline's own threshold, for a plain background), auto (learn the "
+                        "empty stage from the first 30 frames, then hold it), capture (ask "
+                        "to clear the stage and capture it first), or FILE, a photograph of "
+                        "the empty stage from the camera's place")
     s.add_argument("--preview", action="store_true",
                    help="show the experimenter's preview window (camera, contour, array, "
                         "frame rate, latency); Escape in it stops")

@@ -141,18 +141,24 @@ class Encoded:
     program: Program | None
     encode_ms: float
     code_ms: float
+    #: what was taken for the object (:class:`vtexp.encoding.figure.Figure`), with a
+    #: background model; None without one
+    figure: object = None
 
 
 class LiveEncoder:
     """Frame -> Pattern -> Schedule -> :class:`Program`, with what the pipeline carries
     from one frame to the next (the snake)."""
 
-    def __init__(self, setup: LiveSetup):
+    def __init__(self, setup: LiveSetup, background=None):
         self.setup = setup
         self._encode, _ = PIPELINES[setup.pipeline]
         self._code, _ = CODINGS[setup.coding]
         self.tracker = SnakeTracker(**setup.encoding_params) \
             if setup.pipeline == "snake-corners" else None
+        #: tells the object from the scene (``update(frame) -> Figure``,
+        #: :class:`vtexp.encoding.figure.BackgroundModel`); None: the pipeline's own threshold
+        self.background = background
 
     def process(self, gray: np.ndarray, *, frame: int = 0, t_capture: float = 0.0) -> Encoded:
         import time
@@ -161,19 +167,28 @@ class LiveEncoder:
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)   # said once (LiveSetup.warnings)
+            extra, figure = {}, None
+            if self.background is not None:
+                figure = self.background.update(gray)
+                if figure.empty:        # an empty stage, or still learning: nothing
+                    empty = Pattern(rows=s.profile.rows, cols=s.profile.cols,
+                                    pipeline=s.pipeline, points=[])
+                    return Encoded(empty, None, (time.perf_counter() - t0) * 1000.0, 0.0,
+                                   figure)
+                extra = {"mask": figure.mask}
             if self.tracker is not None:
-                pattern = self.tracker.pattern(gray, s.profile.rows, s.profile.cols)
+                pattern = self.tracker.pattern(gray, s.profile.rows, s.profile.cols, **extra)
             else:
                 pattern = self._encode(gray, s.profile.rows, s.profile.cols,
-                                       **s.encoding_params)
+                                       **s.encoding_params, **extra)
             t1 = time.perf_counter()
             if not pattern.points:
-                return Encoded(pattern, None, (t1 - t0) * 1000.0, 0.0)
+                return Encoded(pattern, None, (t1 - t0) * 1000.0, 0.0, figure)
             schedule = self._code(pattern, s.profile, **s.coding_params)
         t2 = time.perf_counter()
         program = Program.build(schedule, pattern, cycle_ms(s.coding, pattern, schedule),
                                 frame=frame, t_capture=t_capture, hold=s.play == "hold")
-        return Encoded(pattern, program, (t1 - t0) * 1000.0, (t2 - t1) * 1000.0)
+        return Encoded(pattern, program, (t1 - t0) * 1000.0, (t2 - t1) * 1000.0, figure)
 
 
 def cycle_ms(coding: str, pattern: Pattern, schedule: Schedule) -> float:

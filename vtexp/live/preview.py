@@ -18,6 +18,7 @@ array); Escape or ``q`` in it ends the run.
 from __future__ import annotations
 
 import math
+import textwrap
 import time
 from collections.abc import Callable
 
@@ -52,8 +53,15 @@ def _camera_panel(snap: Snapshot, h: int) -> np.ndarray:
                    0.5, FG, 1, cv.LINE_AA)
         return panel
     gray, s = _fit(snap.frame.image, h)
-    panel = cv.cvtColor(gray, cv.COLOR_GRAY2BGR)
+    panel = cv.cvtColor(gray, cv.COLOR_GRAY2BGR) if gray.ndim == 2 else gray.copy()
     enc = snap.encoded
+    figure = enc.figure if enc is not None else None
+    if figure is not None and not figure.empty:
+        # what was taken for the object (magenta), as `vtexp encode --png` draws it
+        mask = cv.resize(figure.mask, (panel.shape[1], panel.shape[0]),
+                         interpolation=cv.INTER_NEAREST)
+        contours, _ = cv.findContours(mask, cv.RETR_EXTERNAL, cv.CHAIN_APPROX_NONE)
+        cv.drawContours(panel, contours, -1, (255, 0, 255), 2, cv.LINE_AA)
     m = ImageToArray.from_params(enc.pattern.params) if enc is not None else None
     if m is not None:
         p = enc.pattern
@@ -111,6 +119,11 @@ def _pattern_panel(snap: Snapshot, profile: DeviceProfile, h: int) -> np.ndarray
         panel = np.full((h, h, 3), BG, np.uint8)
         cv.putText(panel, "no object found", (10, h // 2), cv.FONT_HERSHEY_SIMPLEX, 0.6, FG,
                    1, cv.LINE_AA)
+        figure = snap.encoded.figure if snap.encoded is not None else None
+        if figure is not None and figure.reason:     # why: learning, an empty stage, ...
+            for k, line in enumerate(textwrap.wrap(figure.reason, 40)[:6]):
+                cv.putText(panel, line, (10, h // 2 + 24 + 18 * k), cv.FONT_HERSHEY_SIMPLEX,
+                           0.42, DIM, 1, cv.LINE_AA)
         return panel
     img = draw_pattern(snap.encoded.pattern, cell=max(10, int(h / (profile.rows + 2))),
                        title="contour on the array")

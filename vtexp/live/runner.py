@@ -37,9 +37,11 @@ def run_live(source: FrameSource, setup: LiveSetup, device: DeviceBase, *,
              preview: bool = False, record: str | Path | None = None,
              duration_s: float | None = None, stall_s: float = 2.0,
              command: list[str] | None = None, preview_options: dict | None = None,
-             screenshot: str | Path | None = None) -> LiveResult:
+             screenshot: str | Path | None = None, background=None) -> LiveResult:
     """Run ``source`` through ``setup`` to ``device`` until the source ends, ``duration_s``
-    passes, the preview's Escape, Ctrl-C or an error (module docstring)."""
+    passes, the preview's Escape, Ctrl-C or an error (module docstring). ``background``
+    (:class:`vtexp.encoding.figure.BackgroundModel`) tells the object from the scene; None
+    leaves it to the pipeline's own threshold (a plain background)."""
     recorder = None
     if record is not None:
         recorder = Recorder(record, {
@@ -52,7 +54,8 @@ def run_live(source: FrameSource, setup: LiveSetup, device: DeviceBase, *,
             "versions": {"vtexp": __version__, "python": platform.python_version()}},
             t0=device.clock.now())
     holder: dict[str, Snapshot] = {}
-    run = LiveRun(source, LiveEncoder(setup), device, duration_s=duration_s, stall_s=stall_s,
+    run = LiveRun(source, LiveEncoder(setup, background), device, duration_s=duration_s,
+                  stall_s=stall_s,
                   sinks=[recorder] if recorder else [],
                   on_snapshot=(lambda s: holder.__setitem__("s", s)) if preview else None)
     if recorder is not None:

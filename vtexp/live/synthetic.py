@@ -91,13 +91,17 @@ def true_centroid(img: np.ndarray) -> tuple[float, float]:
 def write_video(path: str | Path, kind: str = "rectangle", *, seconds: float = 5.0,
                 fps: float = 30.0, width: int = 640, height: int = 480, size: float = 0.35,
                 sweeps: float = 1.0, turn_deg_per_s: float = 36.0, noise_sd: float = 4.0,
-                seed: int = 0) -> list[dict]:
+                seed: int = 0, backdrop: np.ndarray | None = None,
+                empty_s: float = 0.0) -> list[dict]:
     """Write an MJPG video of ``kind`` moving and turning (module docstring); return per
     frame ``{"frame", "t_s", "center_x", "center_y", "rotation_deg", "centroid_row",
     "centroid_col"}`` and write it beside the video as ``<path>.truth.json``.
 
     The object crosses from 25 % to 75 % of the width and back ``sweeps`` times over the
-    video, bobs ±8 % of the height and turns ``turn_deg_per_s``.
+    video, bobs ±8 % of the height and turns ``turn_deg_per_s``. ``backdrop`` (a gray
+    image, e.g. a photograph; scaled to the frame) is the scene behind the object instead
+    of a plain background; ``empty_s``: that long of the empty scene first (the object's
+    rows then say ``None`` for its centroid).
     """
     if kind not in OBJECTS:
         raise ValueError(f"unknown object {kind!r}; one of {', '.join(OBJECTS)}")
@@ -109,17 +113,25 @@ def write_video(path: str | Path, kind: str = "rectangle", *, seconds: float = 5
     if not writer.isOpened():
         raise OSError(f"cannot write a video to {path}")
     rng = np.random.default_rng(seed)
+    scene = None if backdrop is None else cv.resize(np.asarray(backdrop, np.uint8),
+                                                    (width, height), interpolation=cv.INTER_AREA)
+    n_empty = int(round(empty_s * fps))
     truth = []
     try:
-        for k in range(n):
+        for k in range(n_empty + n):
             t = k / fps
-            u = (k / n) * sweeps
+            u = (max(k - n_empty, 0) / n) * sweeps
             cx = 0.5 - 0.25 * math.cos(2 * math.pi * u)        # 0.25 .. 0.75 and back
             cy = 0.5 + 0.08 * math.sin(2 * math.pi * 2 * u)
             rot = turn_deg_per_s * t
             img = render_object(kind, width=width, height=height, size=size, center_x=cx,
                                 center_y=cy, rotation_deg=rot)
             r, c = true_centroid(img)
+            if scene is not None:              # the object over the scene, by its mask
+                img = np.where(img != img[0, 0], img, scene) if k >= n_empty else scene.copy()
+            if k < n_empty:
+                img = scene.copy() if scene is not None else np.full_like(img, img[0, 0])
+                r = c = None
             if noise_sd > 0:
                 img = np.clip(img + rng.normal(0, noise_sd, img.shape), 0, 255).astype(np.uint8)
             writer.write(img)
@@ -140,6 +152,8 @@ def tracking_errors(frames, truth: list[dict], to_array) -> np.ndarray:
     out = []
     for f, r, c in zip(frames["frame"], frames["centroid_row"], frames["centroid_col"]):
         if f not in by_frame or r != r or c != c:        # NaN: no object found
+            continue
+        if by_frame[f]["centroid_row"] is None:          # the empty scene before it
             continue
         tr = to_array.to_array([[by_frame[f]["centroid_row"], by_frame[f]["centroid_col"]]])[0]
         out.append(math.hypot(r - tr[0], c - tr[1]))

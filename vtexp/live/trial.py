@@ -30,14 +30,22 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .._cv2 import cv2
 from ..compile import Condition, code, encode
 from ..errors import InputError, SessionError
 from ..model import DeviceProfile, Pattern, Schedule
 from .sources import Capture, CameraSource, FrameSource, LatestFrame, SourceEnded, VideoSource
 
-#: Called with the text to show; returns when the experimenter pressed Enter.
-CapturePrompt = Callable[[str], None]
+#: Called with the text to show; returns when the experimenter pressed Enter, with what
+#: they typed before it (or None).
+CapturePrompt = Callable[[str], "str | None"]
+
+#: Frames averaged into a capture of the empty stage (less sensor noise than one).
+EMPTY_FRAMES = 10
+#: What the experimenter types, at an object's prompt, to capture the empty stage again.
+RECAPTURE = "e"
 
 
 @dataclass
@@ -72,8 +80,11 @@ def _new_file(folder: Path, stem: str, suffix: str = ".png") -> Path:
 
 
 def capture(lx, trial, session_dir: Path, prompt: CapturePrompt | None,
-            source: FrameSource, camera_name: str, *, stall_s: float = 5.0) -> Captured:
-    """Steps 1-2 of the module docstring: the frame, saved. ``source`` stays open."""
+            source: FrameSource, camera_name: str, *, stall_s: float = 5.0,
+            recapture: Callable[[], None] | None = None) -> Captured:
+    """Steps 1-2 of the module docstring: the frame, saved. ``source`` stays open.
+    ``recapture``: what to call when the experimenter asks to capture the empty stage
+    again at the object's prompt."""
     spec = lx.experiment.stimuli[trial.stimulus]
     box = LatestFrame()
     cap = Capture(source, box)
@@ -87,8 +98,14 @@ def capture(lx, trial, session_dir: Path, prompt: CapturePrompt | None,
                 raise SessionError(f"trial {trial.number}: stimulus {trial.stimulus!r} asks the "
                                    "experimenter to place the object, but nobody is at a "
                                    "terminal; declare delay_s, or run from a terminal")
-            prompt(f"Trial {trial.number}: place {spec.object or trial.stimulus} in front of "
-                   f"{camera_name}, then press Enter ")
+            while True:
+                said = prompt(f"Trial {trial.number}: place {spec.object or trial.stimulus} "
+                              f"in front of {camera_name}, then press Enter"
+                              + (f" ('{RECAPTURE}' and Enter: capture the empty stage again "
+                                 "first) " if recapture is not None else " "))
+                if recapture is None or (said or "").strip().lower() != RECAPTURE:
+                    break
+                recapture()
         deadline = time.monotonic() + stall_s
         frame = None
         while frame is None:
@@ -104,23 +121,77 @@ def capture(lx, trial, session_dir: Path, prompt: CapturePrompt | None,
                 box.wait(0.05)
     finally:
         cap.stop(close=False)
-    path = _new_file(session_dir / "stim", f"trial-{trial.number:03d}")
-    ok, data = cv2().imencode(".png", frame.image)
+    path = save_frame(session_dir / "stim", f"trial-{trial.number:03d}", frame.image)
+    return Captured(frame.image, str(path.relative_to(session_dir)), frame.t_capture)
+
+
+def capture_empty_stage(source: FrameSource, prompt: CapturePrompt | None, *,
+                        frames: int = EMPTY_FRAMES, stall_s: float = 5.0) -> np.ndarray:
+    """The empty stage, for telling each trial's object from it
+    (:func:`vtexp.encoding.figure.figure_from_reference`): the experimenter is asked to
+    clear the stage and press Enter, then the mean of the next ``frames`` frames of
+    ``source`` (open) is taken."""
+    if prompt is None:
+        raise InputError("capturing the empty stage asks the experimenter to clear it, but "
+                         "no one is at a terminal; give a photograph of the empty stage "
+                         "(--background FILE) or learn it (--background auto)",
+                         key="--background")
+    box = LatestFrame()
+    cap = Capture(source, box)
+    cap.start()
+    got: list[np.ndarray] = []
+    try:
+        prompt(f"Clear the stage in front of {source.label}: nothing but the background, "
+               "then press Enter ")
+        deadline = time.monotonic() + stall_s
+        while len(got) < frames:
+            try:
+                frame = box.take()
+            except SourceEnded:
+                break
+            if frame is None:
+                if time.monotonic() > deadline:
+                    break
+                box.wait(0.05)
+                continue
+            got.append(np.asarray(frame.image, np.float32))
+    finally:
+        cap.stop(close=False)
+    if not got:
+        raise InputError(f"{source.label} gave no frame of the empty stage for {stall_s:g} s",
+                         key="--background")
+    return np.clip(np.rint(np.mean(got, axis=0)), 0, 255).astype(np.uint8)
+
+
+def save_frame(folder: Path, stem: str, image) -> Path:
+    """``image`` as ``folder/stem.png`` (``stem-2.png``, ... if taken), created exclusively."""
+    path = _new_file(folder, stem)
+    ok, data = cv2().imencode(".png", image)
     if not ok:
-        raise SessionError(f"cannot encode the frame of trial {trial.number} as PNG")
+        raise SessionError(f"cannot encode {stem} as PNG")
     try:
         with open(path, "xb") as f:
             f.write(data.tobytes())
     except OSError as e:
-        raise SessionError(f"cannot save the frame of trial {trial.number} to {path}: "
-                           f"{e.strerror or e}") from None
-    return Captured(frame.image, str(path.relative_to(session_dir)), frame.t_capture)
+        raise SessionError(f"cannot save {stem} to {path}: {e.strerror or e}") from None
+    return path
 
 
-def coded(lx, condition: Condition, image, profile: DeviceProfile
+def coded(lx, condition: Condition, image, profile: DeviceProfile, empty_stage=None
           ) -> tuple[Pattern, Schedule]:
-    """The captured frame through the condition's pipeline and coding."""
-    pattern = encode(lx, image, profile, condition.encoding_params)
+    """The captured frame through the condition's pipeline and coding; with the
+    ``empty_stage`` captured, the object is what differs from it."""
+    mask = None
+    if empty_stage is not None:
+        from ..encoding.figure import figure_from_reference
+
+        figure = figure_from_reference(image, empty_stage)
+        if figure.empty:
+            raise InputError(f"no object was found in the frame taken for stimulus "
+                             f"{condition.stimulus!r}: {figure.reason}",
+                             key=f"stimuli.{condition.stimulus}")
+        mask = figure.mask
+    pattern = encode(lx, image, profile, condition.encoding_params, mask=mask)
     if not pattern.points:
         raise InputError(f"no object was found in the frame taken for stimulus "
                          f"{condition.stimulus!r}; is it in front of the camera, against a "

@@ -4,7 +4,7 @@ and the experimenter's prompt. The work is :mod:`vtexp.live.trial`'s."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import SessionError
@@ -15,9 +15,17 @@ from .files import has_camera
 
 @dataclass
 class CameraTrials:
+    """A camera stimulus that asks the experimenter to place its object has the stage
+    captured empty first (once per camera, and again when the experimenter asks at an
+    object's prompt), kept as ``stim/empty-stage.png`` beside the trial frames; each
+    trial's object is what differs from it (:mod:`vtexp.encoding.figure`). One taken
+    after ``delay_s`` with nobody asked, or from a video standing in for the camera, is
+    encoded as it is."""
+
     lx: LoadedExperiment
     dir: Path
-    prompt: Callable[[str], None] | None
+    prompt: Callable[[str], str | None] | None
+    empty: dict[str, object] = field(default_factory=dict)   # camera name -> the stage
 
     @classmethod
     def of(cls, lx: LoadedExperiment, folder: Path, prompt) -> CameraTrials | None:
@@ -40,15 +48,32 @@ class CameraTrials:
         from ..live import trial as camera
 
         source, name = camera.camera_source(self.lx, trial.stimulus)
+        spec = self.lx.experiment.stimuli[trial.stimulus]
         try:
-            got = camera.capture(self.lx, trial, self.dir, self.prompt, source, name)
+            recapture = None
+            if spec.delay_s is None and spec.camera is not None:
+                def recapture() -> None:
+                    self._empty_stage(source, name)
+                if name not in self.empty:
+                    source.open()
+                    recapture()
+            got = camera.capture(self.lx, trial, self.dir, self.prompt, source, name,
+                                 recapture=recapture)
             if self.lx.experiment.stimuli[trial.stimulus].live:
                 folder = self.dir / (got.stim_file[:-len(".png")] + "-live")
                 live = camera.LiveTrial(self.lx, trial.condition, device, source, folder)
                 source = None                       # the live run reads it from here on
                 return None, got.stim_file, live
-            _, schedule = camera.coded(self.lx, trial.condition, got.image, device.profile)
+            _, schedule = camera.coded(self.lx, trial.condition, got.image, device.profile,
+                                       self.empty.get(name))
             return schedule, got.stim_file, None
         finally:
             if source is not None:
                 source.close()
+
+    def _empty_stage(self, source, name: str) -> None:
+        from ..live import trial as camera
+
+        stage = camera.capture_empty_stage(source, self.prompt)
+        camera.save_frame(self.dir / "stim", "empty-stage", stage)
+        self.empty[name] = stage

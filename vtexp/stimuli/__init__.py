@@ -43,8 +43,11 @@ def render(generator: str, params: dict, rows: int | None = None,
     return fn(**params)
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """Read an image file (PNG, JPEG, ...; 8 or 16 bit; gray or colour) as 8-bit gray."""
+def read_image(path: str | Path, *, colour: bool = False) -> np.ndarray:
+    """Read an image file (PNG, JPEG, ...; 8 or 16 bit; gray or colour) as 8-bit gray, or
+    with ``colour`` as 8-bit BGR (a gray file as three equal channels): the figure-ground
+    separation (:mod:`vtexp.encoding.figure`) tells an object from its background by colour
+    as well as brightness."""
     p = Path(path)
     try:
         if not p.is_file():
@@ -65,9 +68,12 @@ def read_image(path: str | Path) -> np.ndarray:
                          path=str(p)) from None
     if img is None:
         raise InputError("not a readable image (expected PNG, JPEG, BMP or TIFF)", path=str(p))
-    if img.ndim == 3:
-        code = cv.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv.COLOR_BGR2GRAY
-        img = cv.cvtColor(img, code)
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = cv.cvtColor(img, cv.COLOR_BGRA2BGR)
+    if img.ndim == 3 and not colour:
+        img = cv.cvtColor(img, cv.COLOR_BGR2GRAY)
+    elif img.ndim == 2 and colour:
+        img = cv.cvtColor(img, cv.COLOR_GRAY2BGR)
     if img.dtype == np.uint16:
         img = (img / 257.0).round().astype(np.uint8)
     elif img.dtype != np.uint8:
@@ -75,8 +81,8 @@ def read_image(path: str | Path) -> np.ndarray:
     return img
 
 
-def read_camera(index: int = 0, *, warmup_frames: int = 3) -> np.ndarray:
-    """One frame from an OpenCV VideoCapture device, as 8-bit gray.
+def read_camera(index: int = 0, *, warmup_frames: int = 3, colour: bool = False) -> np.ndarray:
+    """One frame from an OpenCV VideoCapture device, as 8-bit gray (BGR with ``colour``).
 
     A few frames are read and dropped first, while the camera adjusts its exposure.
     """
@@ -95,6 +101,8 @@ def read_camera(index: int = 0, *, warmup_frames: int = 3) -> np.ndarray:
             raise InputError(f"camera {index} opened but gave no frame")
     finally:
         cap.release()
+    if colour:
+        return frame if frame.ndim == 3 else cv.cvtColor(frame, cv.COLOR_GRAY2BGR)
     return cv.cvtColor(frame, cv.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
 
 
