@@ -67,6 +67,14 @@ pipeline's fit-to-object rule with the box it fitted, recorded as it ran):
   one is used) per frame, one thread (``cv2.setNumThreads(1)``, BLAS pools at 1).
 - Empty scenes: actuators driven (distinct actuators in the Schedule), median, and the
   share of scenes that drive any.
+- Outcomes: played; none (an empty Pattern: the pipeline found nothing); refused (an
+  empty Figure); unsafe (the safety check refused the Schedule, as a session would: nothing
+  is played). Anything not played scores IoU 0 and is not named; the Chamfer median is over
+  the frames played.
+- ``own`` (a diagnostic, fit-to-object pipelines): the IoU with the true mask fitted by its
+  own bounding box instead of the pipeline's, i.e. against what the array would show had
+  the pipeline found the object alone. On a plain ground the two agree; on a real one the
+  pipeline's box is mostly the background's.
 
 The baseline is ``none`` on the same scenes in the same run: the ratio columns are
 IoU / baseline IoU and fps / baseline fps. Prints a table per pipeline and writes
@@ -895,12 +903,33 @@ def measure_empty(study: Study, case: Case, ground: str, method: str,
             "ms": round(played.ms, 3), "driven": played.driven}
 
 
+def measure_case(study: Study, case: Case, methods: list[str], recorder: FitRecorder
+                 ) -> tuple[list[dict], list[dict]]:
+    """The case's scenes with and without the object through one study, on both grounds,
+    by every figure-ground method: (records, empty-scene records)."""
+    namer = Namer(study, case) if case.kind in SHAPES else None
+    records, empties = [], []
+    for ground in ("plain", "real"):
+        for method in methods:
+            try:
+                records.append(measure(study, case, ground, method, recorder, namer))
+                empties.append(measure_empty(study, case, ground, method, recorder))
+            except Exception as e:
+                e.add_note(f"in case {case.index} (seed {case.seed}, {case.what} on {ground} "
+                           f"{case.ground}), {study.spec.pipeline}, figure {method}")
+                raise
+    return records, empties
+
+
 def run(cases: int, seed: int = SEED) -> dict:
     """Every case through every study, plain and real, by every figure-ground method."""
     cv = cv2()
     threads = cv.getNumThreads()
     cv.setNumThreads(1)
     grounds, skipped = load_grounds()
+    if not grounds:
+        raise SystemExit("no photograph found (" + ", ".join(skipped) + "): install the bench "
+                         "extra, pip install -e '.[bench]'")
     studies = [prepare(s) for s in STUDIES]
     methods = {st.spec.pipeline: [m for m in available_methods()
                                   if m == "none" or mask_refusal(st) is None]
@@ -913,11 +942,9 @@ def run(cases: int, seed: int = SEED) -> dict:
                 case = make_case(i, grounds, seed)
                 described.append(case.describe())
                 for st in studies:
-                    namer = Namer(st, case) if case.kind in SHAPES else None
-                    for ground in ("plain", "real"):
-                        for method in methods[st.spec.pipeline]:
-                            records.append(measure(st, case, ground, method, recorder, namer))
-                            empties.append(measure_empty(st, case, ground, method, recorder))
+                    got, empty = measure_case(st, case, methods[st.spec.pipeline], recorder)
+                    records += got
+                    empties += empty
                 if sys.stderr.isatty():
                     print(f"\rcase {i + 1}/{cases}", end="", file=sys.stderr, flush=True)
         if sys.stderr.isatty():
