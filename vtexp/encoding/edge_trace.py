@@ -43,7 +43,8 @@ A figure mask (``mask=``, :mod:`vtexp.encoding.figure`) replaces Otsu's object:
 look for edges in :func:`~vtexp.encoding.segment.flatten_background`'s image,
 where the background beyond a ring of ``RING`` of the image's shorter side around
 the mask has no edges left (on brick or grass the paper's Sobel-Otsu edges are
-the background's).
+the background's); ``outline`` closes the object's edges with the mask's outline
+(where the object is as bright as the background next to it, it has no edge).
 """
 
 from __future__ import annotations
@@ -330,6 +331,12 @@ def edge_cells(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
         while min(src.shape) >= 2 * target and min(src.shape) >= 8:
             src = cv.pyrDown(src)
         edges = sobel_edges(src).astype(np.uint8)
+        if mask is not None:
+            # The figure's outline closes the gaps where the object's edge is faint
+            # against the background next to it.
+            level = cv.resize(mask, (src.shape[1], src.shape[0]), interpolation=cv.INTER_AREA)
+            outer, _ = cv.findContours(level, cv.RETR_EXTERNAL, cv.CHAIN_APPROX_NONE)
+            cv.drawContours(edges, outer, -1, 1, thickness=1)
         contours, _ = cv.findContours(edges, cv.RETR_EXTERNAL, cv.CHAIN_APPROX_NONE)
         filled = np.zeros_like(edges)
         cv.drawContours(filled, contours, -1, 1, thickness=cv.FILLED)

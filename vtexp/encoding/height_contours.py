@@ -186,8 +186,12 @@ def masked_reflectance(gray: np.ndarray, mask: np.ndarray, *,
     the object's own 1st percentile: under a light at the viewer the silhouette's
     rim, turned away from the light, is the object's darkest part (E -> 0). The
     background's median, :func:`reflectance`'s default, is no such level on a
-    textured or unevenly lit background. ``albedo`` defaults to the object's 99th
-    percentile, as in :func:`reflectance`. Returns (E, mask) as it does.
+    textured or unevenly lit background. But an object without a dark rim (a flat
+    disc, a cone: uniform shading) would then have its noise stretched over 0..1,
+    so where the background next to the object (a ring of 2 % of the image's
+    shorter side) is darker than that percentile, its median is taken instead:
+    both bound the level of zero reflectance from above. ``albedo`` defaults to the
+    object's 99th percentile, as in :func:`reflectance`. Returns (E, mask) as it does.
     """
     cv = cv2()
     g = np.asarray(gray)
@@ -203,7 +207,14 @@ def masked_reflectance(gray: np.ndarray, mask: np.ndarray, *,
     if outside.size and np.median(outside) > np.median(inside):
         g = cv.bitwise_not(g)                  # dark object on a light background
         inside = 255 - inside
-    amb = float(np.percentile(inside, 1)) if ambient is None else float(ambient)
+    if ambient is None:
+        r = max(2, int(round(0.02 * min(g.shape))))
+        near = cv.dilate(full_mask, cv.getStructuringElement(cv.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+        ring = g[(near > 0) & (full_mask == 0)]
+        amb = float(np.percentile(inside, 1))
+        amb = min(amb, float(np.median(ring))) if ring.size else amb
+    else:
+        amb = float(ambient)
     alb = float(np.percentile(inside, 99)) if albedo is None else float(albedo)
     if alb - amb < 1.0:
         return empty
