@@ -20,7 +20,7 @@ from pydantic import Field
 from ..model import Model, Pattern, PatternPoint
 from .edge_trace import cells_covered
 from .mapping import ImageToArray
-from .segment import object_mask
+from .segment import given_mask, object_mask
 
 
 class CoveredCellsParams(Model):
@@ -34,8 +34,12 @@ class CoveredCellsParams(Model):
 
 
 def covered_cells(gray: np.ndarray, rows: int, cols: int, *, fill_threshold: float = 0.5,
-                  fit: str = "frame", margin_cells: float = 0.0) -> Pattern:
+                  fit: str = "frame", margin_cells: float = 0.0,
+                  mask: np.ndarray | None = None) -> Pattern:
     """Image -> the cells it covers on a ``rows x cols`` array, all on line 1.
+
+    ``mask`` (uint8 0/1, the image's height x width) is the object if given; an
+    all-zero mask gives an empty Pattern.
 
     Examples
     --------
@@ -45,7 +49,8 @@ def covered_cells(gray: np.ndarray, rows: int, cols: int, *, fill_threshold: flo
     [(2, 2), (5, 2)]
     """
     g = np.asarray(gray)
-    cells = cells_covered(object_mask(g), rows, cols, fill_threshold=fill_threshold,
+    obj = object_mask(g) if mask is None else given_mask(mask, g.shape, "covered-cells")
+    cells = cells_covered(obj, rows, cols, fill_threshold=fill_threshold,
                           margin_cells=margin_cells, whole=fit == "frame")
     points = [PatternPoint(row=int(r), col=int(c), line=1) for r, c in np.argwhere(cells)]
     params: dict = {"fill_threshold": fill_threshold, "fit": fit, "margin_cells": margin_cells}

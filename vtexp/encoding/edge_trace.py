@@ -37,6 +37,14 @@ into the array, so a shape fills it wherever it stands before the camera;
 eq. 11 maps its image), so an object moving across the frame moves across the
 array — what a live camera needs (``vtexp live``). With ``frame`` the mapping is
 recorded in ``params["to_array"]`` (:mod:`vtexp.encoding.mapping`).
+
+A figure mask (``mask=``, :mod:`vtexp.encoding.figure`) replaces Otsu's object:
+``region`` covers the mask, ``skeleton`` thins it, and ``edges`` and ``outline``
+look for edges in :func:`~vtexp.encoding.segment.flatten_background`'s image,
+where the background beyond a ring of ``RING`` of the image's shorter side around
+the mask has no edges left (on brick or grass the paper's Sobel-Otsu edges are
+the background's); ``outline`` closes the object's edges with the mask's outline
+(where the object is as bright as the background next to it, it has no edge).
 """
 
 from __future__ import annotations
@@ -49,7 +57,11 @@ from pydantic import Field
 from .._cv2 import cv2
 from ..model import Model, Pattern, PatternPoint
 from .mapping import ImageToArray
-from .segment import object_mask
+from .segment import flatten_background, given_mask, object_mask
+
+#: Width of the ring around a figure mask whose edges are kept, as a share of the
+#: image's shorter side (a mask may be a pixel or two off the object's edge).
+RING = 0.01
 
 # Chain code of seed 001 Fig. 5: 0 = east, numbered clockwise (rows grow downwards).
 DIRECTIONS = ((0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1))
@@ -284,27 +296,34 @@ def follow_contour(cells: np.ndarray) -> list[tuple[list[tuple[int, int]], list[
 def edge_cells(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
                cells_per_motor: int = 8, fill_threshold: float = 0.5,
                edge_fraction: float = 0.5, margin_cells: float = 0.0,
-               fit: str = "object") -> np.ndarray:
+               fit: str = "object", mask: np.ndarray | None = None) -> np.ndarray:
     """The array's edge cells (bool ``rows x cols``) for ``mode`` and ``fit`` (module
-    docstring)."""
+    docstring); ``mask`` is the object (uint8 0/1 of the image's size) if given."""
     cv = cv2()
     k = cells_per_motor
     whole = fit == "frame"
+    g = np.asarray(gray)
+    box = (0, g.shape[0], 0, g.shape[1]) if whole else None
+    if mask is not None:
+        mask = given_mask(mask, g.shape, "edge-trace")
+        if not mask.any():
+            return np.zeros((rows, cols), bool)
+        box = box or _bbox(mask)
+        if mode in ("edges", "outline"):
+            g = flatten_background(g, mask, RING * min(g.shape[:2]))
     if mode == "region":
         # Area coverage of the Otsu object mask, computed from the full-resolution image.
-        return boundary(cells_covered(object_mask(np.asarray(gray)), rows, cols,
+        return boundary(cells_covered(object_mask(g) if mask is None else mask, rows, cols,
                                       fill_threshold=fill_threshold, margin_cells=margin_cells,
                                       whole=whole))
-    g = np.asarray(gray)
-    canvas = fit_to_array(gray, rows, cols, cells_per_motor=k, margin_cells=margin_cells,
-                          box=(0, g.shape[0], 0, g.shape[1]) if whole else None)
+    canvas = fit_to_array(g, rows, cols, cells_per_motor=k, margin_cells=margin_cells, box=box)
     if canvas is None:
         return np.zeros((rows, cols), bool)
     inner = (slice(k, -k), slice(k, -k))               # the array, without the frame
     if mode == "outline":
         # Edges at pyramid level where the object spans about k px per cell, region
         # enclosed by the outer edge contours, then area coverage as in 'region'.
-        src = np.asarray(gray)
+        src = g
         if src.dtype != np.uint8:
             src = cv.normalize(src.astype(np.float32), None, 0, 255,
                                cv.NORM_MINMAX).astype(np.uint8)
@@ -312,6 +331,12 @@ def edge_cells(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
         while min(src.shape) >= 2 * target and min(src.shape) >= 8:
             src = cv.pyrDown(src)
         edges = sobel_edges(src).astype(np.uint8)
+        if mask is not None:
+            # The figure's outline closes the gaps where the object's edge is faint
+            # against the background next to it.
+            level = cv.resize(mask, (src.shape[1], src.shape[0]), interpolation=cv.INTER_AREA)
+            outer, _ = cv.findContours(level, cv.RETR_EXTERNAL, cv.CHAIN_APPROX_NONE)
+            cv.drawContours(edges, outer, -1, 1, thickness=1)
         contours, _ = cv.findContours(edges, cv.RETR_EXTERNAL, cv.CHAIN_APPROX_NONE)
         filled = np.zeros_like(edges)
         cv.drawContours(filled, contours, -1, 1, thickness=cv.FILLED)
@@ -320,22 +345,36 @@ def edge_cells(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
     if mode == "edges":
         line = sobel_edges(canvas)[inner]
     elif mode == "skeleton":
-        line = (cv.ximgproc.thinning(object_mask(canvas) * np.uint8(255)) > 0)[inner]
+        obj = object_mask(canvas) if mask is None else _mask_canvas(mask, rows, cols, k,
+                                                                    margin_cells, box)
+        line = (cv.ximgproc.thinning(obj * np.uint8(255)) > 0)[inner]
     else:
         raise ValueError(f"unknown edge-trace mode {mode!r}")
     counts = line.reshape(rows, k, cols, k).sum(axis=(1, 3))
     return prune_corners(counts >= edge_fraction * k)
 
 
+def _mask_canvas(mask: np.ndarray, rows: int, cols: int, k: int, margin_cells: float,
+                 box: tuple[int, int, int, int]) -> np.ndarray:
+    """A figure mask on :func:`fit_to_array`'s canvas (uint8 0/1), as the image is."""
+    canvas = fit_to_array(mask * np.uint8(255), rows, cols, cells_per_motor=k,
+                          margin_cells=margin_cells, box=box)
+    if canvas is None:          # the mask fills the whole image: one value everywhere
+        return np.ones(((rows + 2) * k, (cols + 2) * k), np.uint8)
+    return (canvas >= 128).astype(np.uint8)
+
+
 def edge_trace(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
                cells_per_motor: int = 8, fill_threshold: float = 0.5,
                edge_fraction: float = 0.5, margin_cells: float = 0.0,
-               fit: str = "object") -> Pattern:
+               fit: str = "object", mask: np.ndarray | None = None) -> Pattern:
     """Image -> ordered outline on a ``rows x cols`` array (seed 001 §3).
 
     Points are numbered in activation order over all lists (loops first in the
     order contour following finds them); ``line`` is the list's index and
-    ``closed`` names the lists that are loops.
+    ``closed`` names the lists that are loops. ``mask`` (uint8 0/1 of the image's
+    height x width, :mod:`vtexp.encoding.figure`) is the object if given (module
+    docstring); an all-zero mask gives an empty Pattern.
 
     Examples
     --------
@@ -346,7 +385,7 @@ def edge_trace(gray: np.ndarray, rows: int, cols: int, *, mode: str = "region",
     """
     cells = edge_cells(gray, rows, cols, mode=mode, cells_per_motor=cells_per_motor,
                        fill_threshold=fill_threshold, edge_fraction=edge_fraction,
-                       margin_cells=margin_cells, fit=fit)
+                       margin_cells=margin_cells, fit=fit, mask=mask)
     points: list[PatternPoint] = []
     closed: list[int] = []
     order = 0

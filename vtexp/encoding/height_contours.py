@@ -15,6 +15,11 @@ The pipeline, each step a function:
 whose points carry their line index (1 = lowest). It works at a resolution of
 ``cells_per_motor`` pixels per actuator, not the camera's: the array cannot show
 more, and the shading, heights and contours are all resolution-free.
+
+Seed 000 assumes a monochromatic background (assumption 1), which Otsu's threshold
+separates from the object. On any other background give the object as a figure
+mask (``mask=``, :mod:`vtexp.encoding.figure`): step 1 is then
+:func:`masked_reflectance`.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from pydantic import Field
 
 from .._cv2 import cv2
 from ..model import Model, Pattern
+from .segment import given_mask
 
 # Values of seed 000 §2.1.2 step (4).
 VARIANCE_THRESHOLDS = (0.02, 0.06)
@@ -50,7 +56,8 @@ class HeightContourParams(Model):
     albedo: Annotated[float, Field(gt=0, le=65535)] | None = Field(
         None, description="gray level of a surface facing the camera; default: estimated")
     ambient: Annotated[float, Field(ge=0, le=65535)] | None = Field(
-        None, description="gray level of zero reflectance; default: the background's median")
+        None, description="gray level of zero reflectance; default: the background's median "
+                          "(with a figure mask: the object's 1st percentile)")
 
 
 # --------------------------------------------------------------------------- steps
@@ -74,7 +81,8 @@ def _percentile(hist: np.ndarray, q: float) -> float:
 
 def reflectance(gray: np.ndarray, *, size: tuple[int, int] | None = None,
                 albedo: float | None = None, ambient: float | None = None,
-                threshold: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
+                threshold: float = 0.04, mask: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Normalised brightness ``E = (I - ambient) / (albedo - ambient)`` and the object mask.
 
     Otsu's threshold splits the image into the (monochromatic, seed 000
@@ -95,8 +103,14 @@ def reflectance(gray: np.ndarray, *, size: tuple[int, int] | None = None,
     its E is the mean over the object's part only: averaging in the background
     would make the silhouette look steeper than it is.
 
+    ``mask`` (a figure mask, :mod:`vtexp.encoding.figure`) gives the object instead of
+    Otsu's threshold, and then ``ambient`` defaults to the object's own darkest
+    pixels (:func:`masked_reflectance`).
+
     Returns (E as float32 in [0, 1], mask), both of ``size`` if given.
     """
+    if mask is not None:
+        return masked_reflectance(gray, mask, size=size, albedo=albedo, ambient=ambient)
     cv = cv2()
     g = np.asarray(gray)
     if g.dtype != np.uint8:
@@ -130,6 +144,14 @@ def reflectance(gray: np.ndarray, *, size: tuple[int, int] | None = None,
     e_min = max(threshold, 3.0 * 1.4826 * mad / (alb - amb))
     level = amb + e_min * (alb - amb)
     _, full_mask = cv.threshold(g, level, 1, cv.THRESH_BINARY)
+    return _working(g, full_mask, size, amb, alb, empty)
+
+
+def _working(g: np.ndarray, full_mask: np.ndarray, size: tuple[int, int] | None, amb: float,
+             alb: float, empty: tuple[np.ndarray, np.ndarray]
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """E and the object mask at the working ``size`` (:func:`reflectance`'s last steps)."""
+    cv = cv2()
     if size is not None and size != (g.shape[1], g.shape[0]):
         # Averages over each working pixel (INTER_AREA on 8-bit data keeps 1/255 steps,
         # well below the brightness resolution that matters here).
@@ -150,6 +172,53 @@ def reflectance(gray: np.ndarray, *, size: tuple[int, int] | None = None,
     mask = keep[labels]
     e = np.clip((gm.astype(np.float32) - amb) / (alb - amb), 0.0, 1.0)
     return (e * mask).astype(np.float32), mask
+
+
+def masked_reflectance(gray: np.ndarray, mask: np.ndarray, *,
+                       size: tuple[int, int] | None = None, albedo: float | None = None,
+                       ambient: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`reflectance` for an object given by a figure mask (uint8 0/1, the image's
+    size; :mod:`vtexp.encoding.figure`) instead of Otsu's threshold.
+
+    The object is the mask. If its median is darker than the background's (outside
+    the mask), the image is inverted, as :func:`reflectance` does for a dark object on
+    a light background. ``ambient``, the gray level of zero reflectance, defaults to
+    the object's own 1st percentile: under a light at the viewer the silhouette's
+    rim, turned away from the light, is the object's darkest part (E -> 0). The
+    background's median, :func:`reflectance`'s default, is no such level on a
+    textured or unevenly lit background. But an object without a dark rim (a flat
+    disc, a cone: uniform shading) would then have its noise stretched over 0..1,
+    so where the background next to the object (a ring of 2 % of the image's
+    shorter side) is darker than that percentile, its median is taken instead:
+    both bound the level of zero reflectance from above. ``albedo`` defaults to the
+    object's 99th percentile, as in :func:`reflectance`. Returns (E, mask) as it does.
+    """
+    cv = cv2()
+    g = np.asarray(gray)
+    if g.dtype != np.uint8:
+        g = cv.normalize(g.astype(np.float32), None, 0, 255, cv.NORM_MINMAX).astype(np.uint8)
+    full_mask = (np.asarray(mask) != 0).astype(np.uint8)
+    out_hw = (size[1], size[0]) if size else g.shape
+    empty = (np.zeros(out_hw, np.float32), np.zeros(out_hw, bool))
+    inside = g[full_mask > 0]
+    if inside.size == 0:
+        return empty
+    outside = g[full_mask == 0]
+    if outside.size and np.median(outside) > np.median(inside):
+        g = cv.bitwise_not(g)                  # dark object on a light background
+        inside = 255 - inside
+    if ambient is None:
+        r = max(2, int(round(0.02 * min(g.shape))))
+        near = cv.dilate(full_mask, cv.getStructuringElement(cv.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+        ring = g[(near > 0) & (full_mask == 0)]
+        amb = float(np.percentile(inside, 1))
+        amb = min(amb, float(np.median(ring))) if ring.size else amb
+    else:
+        amb = float(ambient)
+    alb = float(np.percentile(inside, 99)) if albedo is None else float(albedo)
+    if alb - amb < 1.0:
+        return empty
+    return _working(g, full_mask, size, amb, alb, empty)
 
 
 _ROW = np.array([[1, 0, 1]], np.uint8)
@@ -395,8 +464,11 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
                     levels: str = "interior", proportion: float = PROPORTION,
                     cells_per_motor: int = 4, align: str = "center",
                     min_brightness: float = 0.02, albedo: float | None = None,
-                    ambient: float | None = None) -> Pattern:
+                    ambient: float | None = None, mask: np.ndarray | None = None) -> Pattern:
     """Image -> contour lines of the object's height on the array (seed 000 §2).
+
+    ``mask`` (uint8 0/1 of the image's height x width) is the object if given
+    (:func:`masked_reflectance`); an all-zero mask gives an empty Pattern.
 
     Returns a Pattern whose points are the motors of M, each with ``line`` = k
     (1 = lowest). ``params`` records the number of lines, the variance, the line
@@ -414,6 +486,8 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
     if g.ndim != 2 or g.size == 0:
         raise ValueError("expected a 2-D grayscale image")
     m, n = g.shape
+    if mask is not None:
+        mask = given_mask(mask, g.shape, "height-contours")
     lr, lc = lattice_shape(m, n, rows, cols)
     # Working resolution: at least cells_per_motor pixels per motor of the lattice,
     # reached by an integer reduction factor f (area averaging over f x f blocks is
@@ -421,8 +495,9 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
     f = max(1, min(n // max(lc * cells_per_motor, 1), m // max(lr * cells_per_motor, 1)))
     if f > 1:
         g = g[:m - m % f, :n - n % f]
+        mask = None if mask is None else mask[:m - m % f, :n - n % f]
     wh = (g.shape[1] // f, g.shape[0] // f)
-    e, mask = reflectance(g, size=wh, albedo=albedo, ambient=ambient)
+    e, mask = reflectance(g, size=wh, albedo=albedo, ambient=ambient, mask=mask)
     z = shape_from_shading(e, mask, min_brightness=min_brightness)
     h = normalise_height(z, mask)
     if lines == "variance":

@@ -95,7 +95,7 @@ from ..errors import InputError
 from ..model import Model, Pattern
 from .mapping import ImageToArray
 from .phantom_grid import fit_to_array, grid_path
-from .segment import object_mask
+from .segment import flatten_background, given_mask, object_mask
 
 
 class SnakeCornersParams(Model):
@@ -206,6 +206,23 @@ def working_image(gray: np.ndarray, work_px: int) -> tuple[np.ndarray, int]:
     return cv.resize(gray[:hh * f, :ww * f], (ww, hh), interpolation=cv.INTER_AREA), f
 
 
+#: With a figure mask, the working image keeps its edges within this many working
+#: pixels of the mask (and fades out over as many more): the snake's start lies on
+#: the mask's outline, and the object's edge within a pixel or two of it.
+RING_PX = 3.0
+
+
+def working_mask(mask: np.ndarray, f: int) -> np.ndarray:
+    """A full-resolution mask (uint8 0/1) at :func:`working_image`'s resolution: a working
+    pixel is the object's if the object covers at least half of it."""
+    if f == 1:
+        return mask
+    h, w = mask.shape[0] // f, mask.shape[1] // f
+    cover = cv2().resize(mask[:h * f, :w * f] * np.uint8(255), (w, h),
+                         interpolation=cv2().INTER_AREA)
+    return (cover >= 128).astype(np.uint8)
+
+
 def edge_strength(work: np.ndarray, blur_sigma: float = 1.0
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Smoothed image (uint8), its Sobel derivatives and gradient magnitude ‖∇I‖ (seed 002
@@ -219,19 +236,21 @@ def edge_strength(work: np.ndarray, blur_sigma: float = 1.0
     return img, gx, gy, mag
 
 
-def initial_contour(smooth: np.ndarray, *, spacing_px: float, min_area: float
-                    ) -> np.ndarray | None:
-    """Initial snake: Otsu segmentation's largest outer contour, resampled every
-    ``spacing_px`` pixels along its length (an even number of points, at least 8).
+def initial_contour(smooth: np.ndarray, *, spacing_px: float, min_area: float,
+                    mask: np.ndarray | None = None) -> np.ndarray | None:
+    """Initial snake: Otsu segmentation's largest outer contour (or that of ``mask``, a
+    figure mask at the working resolution), resampled every ``spacing_px`` pixels
+    along its length (an even number of points, at least 8).
 
     Returns (n, 2) int (row, col) points, or None if there is no object (uniform image,
     or nothing larger than ``min_area`` of the image).
     """
     cv = cv2()
     img8 = smooth
-    if int(img8.max()) - int(img8.min()) < 2:
+    if mask is None and int(img8.max()) - int(img8.min()) < 2:
         return None
-    mask = object_mask(img8)
+    if mask is None:
+        mask = object_mask(img8)
     contours, _ = cv.findContours(mask, cv.RETR_EXTERNAL, cv.CHAIN_APPROX_NONE)
     if not contours:
         return None
@@ -488,7 +507,8 @@ def contour_corners(smooth: np.ndarray, gx: np.ndarray, gy: np.ndarray, contour:
     return rc[ratios >= isotropy]
 
 
-def find_outline(gray: np.ndarray, init: np.ndarray | None = None, **params) -> SnakeResult:
+def find_outline(gray: np.ndarray, init: np.ndarray | None = None,
+                 mask: np.ndarray | None = None, **params) -> SnakeResult:
     """An object's outline by the snake with corners (steps 1-5 of the module docstring).
 
     Parameters
@@ -498,6 +518,13 @@ def find_outline(gray: np.ndarray, init: np.ndarray | None = None, **params) -> 
     init : (n, 2) array, optional
         Where the snake starts, in full-resolution (row, col): the previous frame's
         outline when tracking (:class:`SnakeTracker`). Default: Otsu's outline.
+    mask : 2-D array, optional
+        The object (uint8 0/1 of the image's height x width; a figure mask,
+        :mod:`vtexp.encoding.figure`). The snake then starts from its outline
+        instead of Otsu's, and E_img is the gradient of an image whose background
+        beyond ``RING_PX`` working pixels of the mask is flattened
+        (:func:`~vtexp.encoding.segment.flatten_background`), so that background
+        edges (brick, grass) do not draw the snake away from the object.
     **params
         Keys of :class:`SnakeCornersParams`.
 
@@ -510,6 +537,10 @@ def find_outline(gray: np.ndarray, init: np.ndarray | None = None, **params) -> 
     p = SnakeCornersParams(**params)
     gray = _as_gray(gray)
     work, f = working_image(gray, p.work_px)
+    work_mask = None
+    if mask is not None:
+        work_mask = working_mask(given_mask(mask, gray.shape, "snake-corners"), f)
+        work = flatten_background(work, work_mask, RING_PX)
     smooth, gx, gy, edge = edge_strength(work, p.blur_sigma)
     shape = (int(gray.shape[0]), int(gray.shape[1]))
     started = "otsu"
@@ -521,11 +552,14 @@ def find_outline(gray: np.ndarray, init: np.ndarray | None = None, **params) -> 
         started = "carried"
     if init is None:
         started = "otsu"
-        init = initial_contour(smooth, spacing_px=p.spacing_px, min_area=p.min_area)
+        init = initial_contour(smooth, spacing_px=p.spacing_px, min_area=p.min_area,
+                               mask=work_mask)
     if init is None:
+        what = "the figure mask is empty or" if work_mask is not None else \
+            "the image is uniform or the object is"
         return SnakeResult(np.zeros((0, 2)), np.zeros(0, bool), f, 0,
-                           [("no object found: the image is uniform or the object is "
-                             f"smaller than min_area={p.min_area} of the image")], shape)
+                           [(f"no object found: {what} smaller than min_area={p.min_area} "
+                             "of the image")], shape)
     # Corners first (step 3): found on the initial contour, refined to sub-pixel precision,
     # and held by the nearest snake points, which then do not move and have β = 0.
     pts = init.copy()
@@ -628,26 +662,30 @@ class SnakeTracker:
     def reset(self) -> None:
         self.previous = None
 
-    def outline(self, gray: np.ndarray) -> SnakeResult:
+    def outline(self, gray: np.ndarray, mask: np.ndarray | None = None) -> SnakeResult:
+        """This frame's outline; ``mask`` is the frame's figure mask if given
+        (:func:`find_outline`)."""
         p = self.params
         kw = p.model_dump()
         gray = _as_gray(gray)
         res = None
         prev = self.previous
         if prev is not None and prev.shape == gray.shape:
-            res = find_outline(gray, init=prev.points, **kw)
+            res = find_outline(gray, init=prev.points, mask=mask, **kw)
             if res.empty or res.on_edge < p.lost_fraction:
                 self.restarts += 1
                 res = None
         if res is None:
-            res = find_outline(gray, **kw)
+            res = find_outline(gray, mask=mask, **kw)
         self.previous = None if res.empty else res
         return res
 
-    def pattern(self, gray: np.ndarray, rows: int, cols: int) -> Pattern:
-        """This frame's Pattern, as :func:`snake_corners` makes it, from the tracked snake."""
+    def pattern(self, gray: np.ndarray, rows: int, cols: int,
+                mask: np.ndarray | None = None) -> Pattern:
+        """This frame's Pattern, as :func:`snake_corners` makes it, from the tracked snake;
+        ``mask`` is the frame's figure mask if given."""
         p = self.params
-        res = self.outline(gray)
+        res = self.outline(gray, mask)
         return outline_pattern(res, rows, cols, subdivisions=p.subdivisions, margin=p.margin,
                                closed=True, pipeline="snake-corners",
                                params={**p.model_dump(), "snake_init": res.init},
@@ -769,7 +807,8 @@ def _as_gray(gray: np.ndarray, pipeline: str = "snake-corners") -> np.ndarray:
 # --------------------------------------------------------------------------- pipeline
 
 
-def snake_corners(gray: np.ndarray, rows: int, cols: int, **params) -> Pattern:
+def snake_corners(gray: np.ndarray, rows: int, cols: int, *, mask: np.ndarray | None = None,
+                  **params) -> Pattern:
     """Image -> ordered outline on pins plus phantom points (seed 002, §3.1-3.2).
 
     The outline of :func:`find_outline` is fitted into the ``rows x cols`` array
@@ -788,6 +827,9 @@ def snake_corners(gray: np.ndarray, rows: int, cols: int, **params) -> Pattern:
         Grayscale image.
     rows, cols : int
         Pins of the device.
+    mask : 2-D array, optional
+        The object, uint8 0/1 of the image's height x width (:func:`find_outline`);
+        an all-zero mask gives an empty Pattern.
     **params
         Keys of :class:`SnakeCornersParams`.
 
@@ -805,7 +847,7 @@ def snake_corners(gray: np.ndarray, rows: int, cols: int, **params) -> Pattern:
     [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0]
     """
     p = SnakeCornersParams(**params)
-    res = find_outline(gray, **p.model_dump())
+    res = find_outline(gray, mask=mask, **p.model_dump())
     return outline_pattern(res, rows, cols, subdivisions=p.subdivisions, margin=p.margin,
                            closed=True, pipeline="snake-corners", params=p.model_dump(),
                            fit=p.fit)

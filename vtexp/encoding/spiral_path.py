@@ -35,8 +35,8 @@ from pydantic import Field
 
 from .._cv2 import cv2
 from ..model import Model, Pattern
-from .segment import object_mask
-from .snake import SnakeResult, _as_gray, outline_pattern, working_image
+from .segment import given_mask, object_mask
+from .snake import SnakeResult, _as_gray, outline_pattern, working_image, working_mask
 
 
 class SpiralPathParams(Model):
@@ -56,20 +56,25 @@ class SpiralPathParams(Model):
 
 
 def line_skeleton_path(gray: np.ndarray, *, work_px: int = 320, blur_sigma: float = 0.7,
-                       min_pixels: int = 10) -> tuple[np.ndarray, int]:
+                       min_pixels: int = 10, mask: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, int]:
     """The longest path through the thinned line, (row, col) working pixels, and the
-    working-resolution factor; an empty array if there is no line."""
+    working-resolution factor; an empty array if there is no line. ``mask`` (uint8
+    0/1, the image's size; a figure mask) is the line instead of Otsu's threshold."""
     # Here: SciPy's sparse graphs take a third of a second to import, for this alone.
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
     cv = cv2()
     work, f = working_image(gray, work_px)
-    if blur_sigma > 0:
-        work = cv.GaussianBlur(work, (0, 0), blur_sigma)
-    if int(work.max()) - int(work.min()) < 2:
-        return np.zeros((0, 2), np.int64), f
-    mask = object_mask(work) * np.uint8(255)
+    if mask is not None:
+        mask = working_mask(mask, f) * np.uint8(255)
+    else:
+        if blur_sigma > 0:
+            work = cv.GaussianBlur(work, (0, 0), blur_sigma)
+        if int(work.max()) - int(work.min()) < 2:
+            return np.zeros((0, 2), np.int64), f
+        mask = object_mask(work) * np.uint8(255)
     skel = cv.ximgproc.thinning(mask)
     n_lab, labels, stats, _ = cv.connectedComponentsWithStats((skel > 0).astype(np.uint8),
                                                               connectivity=8)
@@ -104,12 +109,15 @@ def line_skeleton_path(gray: np.ndarray, *, work_px: int = 320, blur_sigma: floa
     return rc[np.array(order[::-1])], f
 
 
-def spiral_path(gray: np.ndarray, rows: int, cols: int, **params) -> Pattern:
+def spiral_path(gray: np.ndarray, rows: int, cols: int, *, mask: np.ndarray | None = None,
+                **params) -> Pattern:
     """Image of a line (the whirlpool) -> ordered open path on pins plus phantom points.
 
     See the module docstring for the steps. One open path (``line`` 0,
     ``closed == []``), ``order`` counting from its start. An image without a
-    line gives an empty Pattern and a ``UserWarning``.
+    line gives an empty Pattern and a ``UserWarning``. ``mask`` (uint8 0/1 of the
+    image's height x width, :mod:`vtexp.encoding.figure`) is the line if given,
+    instead of step 2's threshold; an all-zero mask gives an empty Pattern.
 
     Examples
     --------
@@ -120,11 +128,14 @@ def spiral_path(gray: np.ndarray, rows: int, cols: int, **params) -> Pattern:
     """
     p = SpiralPathParams(**params)
     img = _as_gray(gray, "spiral-path")
+    if mask is not None:
+        mask = given_mask(mask, img.shape, "spiral-path")
     path, f = line_skeleton_path(img, work_px=p.work_px, blur_sigma=p.blur_sigma,
-                                 min_pixels=p.min_pixels)
+                                 min_pixels=p.min_pixels, mask=mask)
     if len(path) == 0:
+        what = "the figure mask is empty" if mask is not None else "the image is uniform"
         res = SnakeResult(np.zeros((0, 2)), np.zeros(0, bool), f, 0,
-                          [("no line found: the image is uniform or the line is shorter "
+                          [(f"no line found: {what} or the line is shorter "
                             f"than {p.min_pixels} pixels")])
     else:
         full = path * float(f) + (f - 1) / 2.0
