@@ -171,7 +171,8 @@ def test_live_command_with_a_photograph_of_the_stage(tmp_path):
     from vtexp.live.synthetic import write_video
 
     stage, _, _ = stage_and_scene(320, 240)
-    gstage = cv2().cvtColor(stage, cv2().COLOR_BGR2GRAY)
+    # the photograph dimmed, so that the light card (grey 210) stands out from all of it
+    gstage = (cv2().cvtColor(stage, cv2().COLOR_BGR2GRAY) * 0.6).astype(np.uint8)
     video = tmp_path / "over-photo.avi"
     write_video(video, "rectangle", seconds=1.5, width=320, height=240, size=0.4,
                 backdrop=gstage, empty_s=0.5)
