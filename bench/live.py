@@ -75,6 +75,7 @@ from vtexp.live.loop import ClockMap, LiveRun  # noqa: E402
 from vtexp.live.program import held  # noqa: E402
 from vtexp.live.sources import VideoSource  # noqa: E402
 from vtexp.live.synthetic import write_video  # noqa: E402
+from vtexp.encoding.figure import BackgroundModel  # noqa: E402
 
 PIPELINES = [  # (pipeline, video object, object size, plays: "play" or "play/follow")
     ("edge-trace", "rectangle", 0.5, ("cycle", "cycle/place", "hold")),
@@ -148,14 +149,15 @@ class Log:
         self.left_out = 0
 
 
-def run_vtexp_live(video: Path, setup: LiveSetup, device) -> Log:
+def run_vtexp_live(video: Path, setup: LiveSetup, device, background=None) -> Log:
     log = Log()
 
     def sink(kind, e):
         if kind == "frame" and e["program"] != "same":
             log.installs.append((e["t_processed"], e["centroid_row"], e["centroid_col"]))
 
-    run = LiveRun(VideoSource(video), LiveEncoder(setup), device, sinks=[sink])
+    model = None if background is None else BackgroundModel.from_reference(background)
+    run = LiveRun(VideoSource(video), LiveEncoder(setup, model), device, sinks=[sink])
     st = run.run()
     log.latencies = list(st.latencies_ms)
     log.processed, log.captured, log.dropped = st.frames_processed, st.frames_captured, \
@@ -321,12 +323,13 @@ def figures(log: Log, truth, t_start, to_array, tx_bytes=None) -> dict:
     }
 
 
-def measure(kind: str, video: Path, truth, setup: LiveSetup, spec: str) -> dict:
+def measure(kind: str, video: Path, truth, setup: LiveSetup, spec: str,
+            backdrop=None) -> dict:
     device, cleanup = make_device(spec, setup.profile)
     try:
         t_start = time.monotonic()          # the video's frame 0 is due about now
         if kind == "vtexp live":
-            log = run_vtexp_live(video, setup, device)
+            log = run_vtexp_live(video, setup, device, backdrop)
         elif kind == "naive":
             log = run_naive(video, setup, device)
         else:
@@ -356,15 +359,21 @@ def main() -> None:
     ap.add_argument("--device", action="append", metavar="SPEC[=PROFILE]",
                     help="device to bench on (repeatable; default: sim and emulator)")
     ap.add_argument("--quick", action="store_true", help="4 s videos")
+    ap.add_argument("--textured", action="store_true",
+                    help="the objects move over a photograph (scikit-image's brick wall, or "
+                         "matplotlib's sample photograph) instead of a plain ground; vtexp "
+                         "live is given the empty stage (--background FILE)")
     args = ap.parse_args()
     seconds = 4.0 if args.quick else args.seconds
     specs = args.device or ["sim", "emulator"]
     out_dir = ROOT / "bench" / "results"
     out_dir.mkdir(parents=True, exist_ok=True)
     videos = {}
+    backdrop = _backdrop() if args.textured else None
     for pipeline, obj, size, _ in PIPELINES:
-        path = out_dir / f"live-{obj}.avi"
-        videos[obj] = (path, write_video(path, obj, seconds=seconds, size=size, fps=FPS))
+        path = out_dir / f"live-{obj}{'-textured' if backdrop is not None else ''}.avi"
+        videos[obj] = (path, write_video(path, obj, seconds=seconds, size=size, fps=FPS,
+                                         backdrop=backdrop))
     rows = []
     for spec_arg, spec, pipeline, obj, plays in cases(specs):
         path, truth = videos[obj]
@@ -373,7 +382,7 @@ def main() -> None:
         for kind, play in runs:
             how, _, follow = play.partition("/")
             setup = LiveSetup.make(pipeline, play=how, follow=follow or "change")
-            f = measure(kind, path, truth, setup, spec)
+            f = measure(kind, path, truth, setup, spec, backdrop)
             row = {"device": spec_arg, "pipeline": pipeline, "profile": setup.profile.name,
                    "loop": kind, "play": play if kind == "vtexp live" else "full frame", **f}
             rows.append(row)
@@ -388,7 +397,8 @@ def main() -> None:
         setup = LiveSetup.make(pipeline)
         device, cleanup = make_device(spec, setup.profile)
         try:
-            st = LiveRun(VideoSource(videos[obj][0], pace=False), LiveEncoder(setup),
+            model = None if backdrop is None else BackgroundModel.from_reference(backdrop)
+            st = LiveRun(VideoSource(videos[obj][0], pace=False), LiveEncoder(setup, model),
                          device).run()
         finally:
             device.close()
@@ -402,12 +412,31 @@ def main() -> None:
               f"{c['fps']:6.1f} fps  processing p95 {c['process_p95_ms']:.1f} ms  "
               f"(x{c['fps'] / FPS:.1f} the camera's {FPS:g} fps)")
     result = {"bench": "live", "seconds": seconds, "fps_in": FPS,
+              "ground": "photograph" if backdrop is not None else "plain",
               "machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
                           "platform": platform.platform(), "load_avg_1m": os.getloadavg()[0]},
               "goals": {"fps": 30, "latency_p95_ms": 40, "tracking_pitch": 0.5},
               "rows": rows, "headroom": capacity}
-    (out_dir / "live.json").write_text(json.dumps(result, indent=2, default=float))
-    print(f"\nwritten: {out_dir / 'live.json'}")
+    name = "live-textured.json" if backdrop is not None else "live.json"
+    (out_dir / name).write_text(json.dumps(result, indent=2, default=float))
+    print(f"\nwritten: {out_dir / name}")
+
+
+def _backdrop() -> np.ndarray:
+    """The scene behind the objects, 640x480 gray: scikit-image's brick wall if it is
+    installed (the bench extra), else matplotlib's sample photograph; dimmed to 60 % so
+    that the light objects (grey 210) stand out from all of it, as a lab would light
+    them."""
+    from vtexp._cv2 import cv2
+    from vtexp.stimuli import read_image
+    try:
+        from skimage import data
+        img = np.asarray(data.brick(), np.uint8)
+    except ImportError:
+        import matplotlib
+        img = read_image(Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg")
+    img = cv2().resize(img, (640, 480), interpolation=cv2().INTER_AREA)
+    return (img * 0.6).astype(np.uint8)
 
 
 def cases(specs: list[str]):
