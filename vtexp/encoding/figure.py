@@ -384,6 +384,9 @@ BORDER_BAND = 0.01
 #: distances and at least MIN_DISTANCE.
 MIN_DISTANCE = 3.0
 SPREAD_FLOOR = 2.0
+#: BackgroundModel: the log-ratio test's threshold is at least this many standard
+#: deviations of the pixel's log-brightness over the learned frames (MOG2's 4 sigma).
+STEADY_SIGMAS = 4.0
 #: GrabCut's working resolution (longer side, pixels) and iterations (note §1.1: 3).
 GRABCUT_PX = 240
 GRABCUT_ITERATIONS = 3
@@ -542,13 +545,21 @@ class BackgroundModel:
     Frozen, MOG2 cannot follow a change of light either, so each frame is first
     brought to the light of the learned background image
     (``getBackgroundImage``): per channel, the gain and light gradient of the
-    log-ratio are fitted as in :func:`figure_from_reference` and divided out. A
-    pixel is figure if MOG2 says so or the log-ratio test of
-    :func:`figure_from_reference` does (measured here, docs/decisions.md: MOG2
-    alone gave IoU 0.77 on the note's flat grey star on brick, both 0.99; the
-    other scenes were unchanged and empty stages stayed empty). The camera moving (phase correlation against the background image), a change over
-    most of the frame, and a figure too small or too faint give an empty Figure
-    with the reason; :meth:`relearn` starts learning again (the stage must be empty).
+    log-ratio are fitted as in :func:`figure_from_reference` and divided out.
+
+    A pixel is figure if MOG2 says so, or if the log-ratio test of
+    :func:`figure_from_reference` does with a threshold of at least STEADY_SIGMAS
+    standard deviations of the pixel's own log-brightness over the learned frames.
+    Measured here on the note's scenes (docs/decisions.md): MOG2 alone found the
+    flat grey star on brick with IoU 0.77 (parts of it lie within its 4 sigma of
+    the brick), with the ratio test 0.99; the ratio test with only its global
+    threshold made a flickering patch of the stage (a screen, +-30 %) figure,
+    which the per-pixel threshold, like MOG2, learns to ignore.
+
+    The camera moving (phase correlation against the background image), a change
+    over most of the frame, and a figure too small or too faint give an empty
+    Figure with the reason; :meth:`relearn` starts learning again (the stage must
+    be empty).
 
     Examples
     --------
@@ -582,6 +593,8 @@ class BackgroundModel:
         self._seen = 0
         self._shape: tuple[int, ...] | None = None
         self._background: np.ndarray | None = None
+        self._sums: list[np.ndarray] = []       # of log-brightness and its square, learning
+        self._steady: np.ndarray | None = None  # the ratio test's per-pixel threshold
 
     @property
     def learning(self) -> bool:
@@ -591,18 +604,14 @@ class BackgroundModel:
         """The figure in ``frame`` (gray or BGR, as the frames learned); while learning,
         an empty Figure whose reason says so."""
         img = as_image(frame, "frame")
+        reason = None
         if self._shape is not None and img.shape != self._shape:
             self.relearn()
             reason = (f"the frame changed size or colour mode ({img.shape[1]}x{img.shape[0]}"
                       f"x{img.shape[2]}); learning the background again")
-        else:
-            reason = None
         self._shape = img.shape
         if self._background is None:
-            self._mog.apply(_to_u8(img), learningRate=-1)
-            self._seen += 1
-            if self._seen >= self.learn_frames:
-                self._background = as_image(self._mog.getBackgroundImage(), "background")
+            self._learn(img)
             return Figure.nothing(img.shape, reason or (
                 f"learning the background ({self._seen} of {self.learn_frames} frames; "
                 "the stage must be empty)"), "model")
@@ -613,10 +622,24 @@ class BackgroundModel:
         score, planes = _light_residual(img, self._background)
         relit = np.exp(np.log(img + LOG_FLOOR) - planes) - LOG_FLOOR
         fg = self._mog.apply(_to_u8(relit), learningRate=0) == 255
-        # Either test: MOG2 alone missed the parts of the flat grey star on brick that lie
-        # within its 4 sigma of the brick (IoU 0.77; with the ratio test, 0.99).
-        fg |= score > change_threshold(score)
+        fg |= score > np.maximum(change_threshold(score), self._steady)
         return figure_from_score(score, "model", raw=fg, redo=redo)
+
+    def _learn(self, img: np.ndarray) -> None:
+        self._mog.apply(_to_u8(img), learningRate=-1)
+        log = np.log(img + LOG_FLOOR)
+        if self._sums:
+            self._sums[0] += log
+            self._sums[1] += log * log
+        else:
+            self._sums = [log, log * log]
+        self._seen += 1
+        if self._seen >= self.learn_frames:
+            self._background = as_image(self._mog.getBackgroundImage(), "background")
+            mean, mean2 = (x / self._seen for x in self._sums)
+            var = np.maximum(mean2 - mean * mean, 0.0).mean(axis=2)
+            self._steady = (STEADY_SIGMAS * np.sqrt(var)).astype(np.float32)
+            self._sums = []
 
 
 def _to_u8(img: np.ndarray) -> np.ndarray:

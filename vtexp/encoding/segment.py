@@ -63,17 +63,20 @@ def flatten_background(gray: np.ndarray, mask: np.ndarray, ring_px: float) -> np
     """``gray`` with the background's edges removed: pixels within ``ring_px`` of the
     object (``mask``, uint8 0/1) keep their value, so the object's own edge stays
     where the image has it even where the mask is a pixel or two off; farther out
-    they fade linearly, over another ``ring_px``, to the median of that ring (the
-    background next to the object), so fading makes no edge of its own. Same dtype.
+    they fade linearly, over another ``ring_px``, to the median of the background
+    within ``max(ring_px, 2)`` pixels of the object, so fading makes no strong edge
+    of its own. ``ring_px=0``: everything outside the mask is that median (the
+    object's silhouette against a plain ground). Same dtype.
     """
     cv = cv2()
     g = np.asarray(gray)
     if not mask.any() or mask.all():
         return g.copy()
     dist = cv.distanceTransform((mask == 0).astype(np.uint8), cv.DIST_L2, 3)
-    ring = (dist > 0) & (dist <= ring_px)
+    ring = (dist > 0) & (dist <= max(ring_px, 2.0))
     level = float(np.median(g[ring])) if ring.any() else float(np.median(g[mask == 0]))
-    keep = np.clip(2.0 - dist / max(ring_px, 1e-6), 0.0, 1.0)
+    keep = np.clip(2.0 - dist / ring_px, 0.0, 1.0) if ring_px > 0 else \
+        (dist == 0).astype(np.float32)
     out = keep * g.astype(np.float32) + (1.0 - keep) * level
     if g.dtype.kind in "ui":
         out = np.clip(np.rint(out), np.iinfo(g.dtype).min, np.iinfo(g.dtype).max)

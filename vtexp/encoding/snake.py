@@ -540,8 +540,12 @@ def find_outline(gray: np.ndarray, init: np.ndarray | None = None,
     work_mask = None
     if mask is not None:
         work_mask = working_mask(given_mask(mask, gray.shape, "snake-corners"), f)
+        # Corners of the object's silhouette only: background texture beside it made
+        # corners on a circle (7-8 px off its outline on the photograph's flag and suit).
+        silhouette = edge_strength(flatten_background(work, work_mask, 0), p.blur_sigma)
         work = flatten_background(work, work_mask, RING_PX)
     smooth, gx, gy, edge = edge_strength(work, p.blur_sigma)
+    c_smooth, c_gx, c_gy = (smooth, gx, gy) if mask is None else silhouette[:3]
     shape = (int(gray.shape[0]), int(gray.shape[1]))
     started = "otsu"
     if init is not None:
@@ -566,14 +570,14 @@ def find_outline(gray: np.ndarray, init: np.ndarray | None = None,
     corner = np.zeros(len(pts), bool)
     exact = np.zeros((len(pts), 2))
     if p.corners:
-        found = contour_corners(smooth, gx, gy, pts, detector=p.corner_detector,
+        found = contour_corners(c_smooth, c_gx, c_gy, pts, detector=p.corner_detector,
                                 quality=p.corner_quality, isotropy=p.corner_isotropy,
                                 max_distance=p.corner_distance_px, max_corners=p.max_corners,
                                 block_size=p.corner_block_px,
                                 isotropy_block=p.isotropy_block_px)
         if len(found):
             h, w = edge.shape
-            for rc in np.clip(refine_corners(smooth, found), 0, [h - 1, w - 1]):
+            for rc in np.clip(refine_corners(c_smooth, found), 0, [h - 1, w - 1]):
                 d2 = ((pts - rc) ** 2).sum(axis=1).astype(np.float64)
                 d2[corner] = np.inf
                 i = int(np.argmin(d2))
