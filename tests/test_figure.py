@@ -446,5 +446,10 @@ def test_an_all_zero_mask_is_an_empty_pattern_and_a_wrong_one_an_input_error(pip
 
 
 def test_mask_is_a_run_time_argument_not_a_parameter_an_experiment_may_declare():
+    from pydantic import ValidationError
+
+    from vtexp.compile import checked_encoding_params
     for name, (_, model) in PIPELINES.items():
         assert "mask" not in model.model_fields, name
+        with pytest.raises(ValidationError, match="mask"):
+            checked_encoding_params(name, {"mask": [[1]]})
