@@ -82,13 +82,34 @@ def find_figure(args, image):
     return figure_from_reference(image, reference)
 
 
-def cmd_encode(args) -> int:
+def _checked(args, coding: str) -> tuple[dict, dict]:
+    """--param and --coding-param, checked here too (compile_stimulus checks them as it
+    goes), so that a mistake in either set is named before the slow encoding."""
     from pydantic import ValidationError
 
-    from ..coding import CODINGS
-    from ..compile import checked_coding_params, checked_encoding_params, compile_stimulus
+    from ..compile import checked_coding_params, checked_encoding_params
+
+    enc = _params(args.param, "--param")
+    try:
+        checked_encoding_params(args.pipeline, enc)
+    except ValidationError as e:
+        err = e.errors(include_url=False)[0]
+        raise InputError(f"{err['msg']}", key=f"--param {'.'.join(map(str, err['loc']))}") from None
+    cod = _params(args.coding_param, "--coding-param")
+    try:
+        checked_coding_params(coding, cod)
+    except ValidationError as e:
+        err = e.errors(include_url=False)[0]
+        raise InputError(f"{err['msg']}",
+                         key=f"--coding-param {'.'.join(map(str, err['loc']))}") from None
+    return enc, cod
+
+
+def cmd_encode(args) -> int:
     from .._cv2 import cv2
-    from ..draw import draw_figure, draw_pattern, schedule_frames, write_gif, write_png
+    from ..coding import CODINGS
+    from ..compile import compile_stimulus
+    from ..draw import draw_figure, draw_pattern, write_png
     from ..encoding import PIPELINES
     from ..errors import UnsafeStimulus
     from ..model import DeviceProfile, Pattern
@@ -104,21 +125,7 @@ def cmd_encode(args) -> int:
     image = load_image(args.image, profile.rows, profile.cols,
                        colour=args.background != "none")
     gray = image if image.ndim == 2 else cv2().cvtColor(image, cv2().COLOR_BGR2GRAY)
-    # Checked here too (compile_stimulus checks them as it goes), so that a mistake in
-    # either set is named before the slow encoding.
-    enc = _params(args.param, "--param")
-    try:
-        checked_encoding_params(args.pipeline, enc)
-    except ValidationError as e:
-        err = e.errors(include_url=False)[0]
-        raise InputError(f"{err['msg']}", key=f"--param {'.'.join(map(str, err['loc']))}") from None
-    cod = _params(args.coding_param, "--coding-param")
-    try:
-        checked_coding_params(coding, cod)
-    except ValidationError as e:
-        err = e.errors(include_url=False)[0]
-        raise InputError(f"{err['msg']}",
-                         key=f"--coding-param {'.'.join(map(str, err['loc']))}") from None
+    enc, cod = _checked(args, coding)
     figure = find_figure(args, image)
     if figure is not None and figure.empty:
         # nothing plays: the experimenter sees why, and what vtexp looked at
@@ -135,12 +142,20 @@ def cmd_encode(args) -> int:
                                              mask=None if figure is None else figure.mask)
     except UnsafeStimulus as e:
         raise InputError(f"unsafe stimulus: {e}", key="--coding-param") from None
+    _report(args, coding, profile, image, figure, pattern, schedule)
+    return 0
+
+
+def _report(args, coding, profile, image, figure, pattern, schedule) -> None:
+    """What ``vtexp encode`` found, said and written (--json, --png, --gif)."""
+    from ..draw import draw_figure, draw_pattern, schedule_frames, write_gif, write_png
+
     if schedule is None:
         print(f"vtexp: warning: no shape found in {args.image}; the pattern is empty",
               file=sys.stderr)
     lines = pattern.lines()
-    print(f"{args.image}: {gray.shape[1]}x{gray.shape[0]} -> {args.pipeline} on {profile.name} "
-          f"({profile.rows}x{profile.cols}): {len(pattern.points)} points on "
+    print(f"{args.image}: {image.shape[1]}x{image.shape[0]} -> {args.pipeline} on "
+          f"{profile.name} ({profile.rows}x{profile.cols}): {len(pattern.points)} points on "
           f"{len(lines)} line(s), {len(pattern.closed)} closed, "
           f"{sum(p.vertex for p in pattern.points)} vertices, "
           f"{sum(p.corner for p in pattern.points)} corners")
@@ -170,7 +185,6 @@ def cmd_encode(args) -> int:
             write_gif(schedule_frames(schedule, profile, step_ms=args.gif_step_ms), args.gif,
                       frame_ms=args.gif_step_ms)
             print(f"  written: {args.gif}")
-    return 0
 
 
 def register(sub) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 from ..errors import SessionError
@@ -52,8 +53,7 @@ class CameraTrials:
         try:
             recapture = None
             if spec.delay_s is None and spec.camera is not None:
-                def recapture() -> None:
-                    self._empty_stage(source, name)
+                recapture = partial(self._empty_stage, source, name)
                 if name not in self.empty:
                     source.open()
                     recapture()
