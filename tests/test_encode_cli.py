@@ -64,8 +64,14 @@ def test_encode_errors_are_clear(cli, tmp_path):
         r = cli("encode", *args)
         assert r.returncode == 2, (args, r.stdout, r.stderr)
         assert needle in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
+    # a uniform picture: nothing to play, and why (what vtexp looked at is drawn anyway)
     r = cli("encode", str(blank), "--pipeline", "edge-trace", "--device", "vest_6x8",
             "--png", str(tmp_path / "b.png"))
+    assert r.returncode == 2 and "nothing to play" in r.stderr and "uniform" in r.stderr
+    assert (tmp_path / "b.png").is_file()
+    # told to use the pipeline's own threshold: an empty pattern, with a warning
+    r = cli("encode", str(blank), "--pipeline", "edge-trace", "--device", "vest_6x8",
+            "--background", "none")
     assert r.returncode == 0 and "no shape found" in r.stderr
     assert "0 points" in r.stdout
 

@@ -84,7 +84,7 @@ def test_encode_of_the_empty_stage_plays_nothing_and_says_why(photos):
     r = run_cli("encode", str(d / "stage.png"), "--pipeline", "edge-trace", "--device",
                 "vest_6x8", "--background", str(d / "stage.png"), "--png", str(png))
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert "no object to play" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert "nothing to play" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert png.is_file()                         # what vtexp looked at, drawn anyway
 
 

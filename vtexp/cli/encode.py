@@ -134,7 +134,7 @@ def cmd_encode(args) -> int:
                 rows=profile.rows, cols=profile.cols, points=[], pipeline=args.pipeline),
                 title=f"{args.pipeline} on {profile.name}"), caption="no object"), args.png)
             print(f"  written: {args.png}")
-        raise InputError(f"no object to play: {figure.reason}", path=args.image)
+        raise InputError(f"nothing to play: {figure.reason}", path=args.image)
     try:
         pattern, schedule = compile_stimulus(gray, profile, pipeline=args.pipeline,
                                              encoding_params=enc, protocol=coding,
