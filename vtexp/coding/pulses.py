@@ -55,12 +55,12 @@ from __future__ import annotations
 import itertools
 import math
 import warnings
-from collections import defaultdict
+from collections import Counter, defaultdict
 from typing import Annotated, Literal
 
 from pydantic import Field
 
-from ..errors import InputError
+from ..errors import InputError, UnsafeStimulus
 from ..model import (
     DeviceProfile,
     Model,
@@ -70,6 +70,14 @@ from ..model import (
     PulseTrain,
     PulseTrainDrive,
     Schedule,
+)
+from .limits import (
+    Span,
+    Unsplittable,
+    longest_splittable_ms,
+    pause_ms,
+    split_activations,
+    split_refusal,
 )
 
 PhantomModel = Literal["linear", "energy"]
@@ -182,13 +190,12 @@ def pulse_trains(pattern: Pattern, profile: DeviceProfile, *, amplitude_v: float
                          pulse_width_ms=corner_pulse_width_ms), corner_vibration_ms)
 
     # Each point asks its pins for a train over [onset, onset + duration).
-    requests: dict[tuple[int, int], list[tuple[float, float, float, int, PulseTrain]]] = \
-        defaultdict(list)
+    points: list[list] = []            # [onset, offset, [(pin, power, train), ...]]
     t = 0.0
-    seq = 0
     for _ in range(loops):
         for p in pattern.ordered():
             train, dur = corner if (corner_emphasis and p.corner) else plain
+            asks = []
             for pin, intensity in phantom_weights(p.row, p.col, phantom_model):
                 # Whole volts at full intensity; shares rounded down to 0.1 mV, never up.
                 amp = train.amplitude_v if intensity >= 1.0 else \
@@ -196,22 +203,35 @@ def pulse_trains(pattern: Pattern, profile: DeviceProfile, *, amplitude_v: float
                 if amp <= 0:
                     continue
                 tr = train.model_copy(update={"amplitude_v": amp})
-                power = amp * amp * tr.pulse_width_ms * tr.frequency_hz
-                on = _tick(t)
-                requests[pin].append((on, on + _tick(dur), power, seq, tr))
-            seq += 1
+                asks.append((pin, amp * amp * tr.pulse_width_ms * tr.frequency_hz, tr))
+            on = _tick(t)
+            points.append([on, on + _tick(dur), asks])
             t += soa_ms if soa_ms is not None else tactile_brush_soa_ms(dur)
 
+    fit = _Fit(params, profile, points)
+    fit.check_settings(pattern)
+    fit.keep_to_budget()
+    requests: dict[tuple[int, int], list[tuple[float, float, float, int, PulseTrain]]] = \
+        defaultdict(list)
+    for seq, (on, off, asks) in enumerate(points):
+        for pin, power, tr in asks:
+            requests[pin].append((on, off, power, seq, tr))
     pulses = []
     for (row, col), reqs in requests.items():
-        pulses.extend(_resolve_pin(row, col, reqs))
+        spans = _resolve_pin(reqs)
+        try:
+            spans = split_activations(spans, profile.limits, [(r[0], r[1]) for r in reqs])
+        except Unsplittable as e:
+            e.actuator = (row, col)
+            raise fit.refusal_to_split(e) from None
+        pulses.extend(Pulse(row=row, col=col, onset_ms=q.onset_ms, duration_ms=q.duration_ms,
+                            train=q.what) for q in spans)
     pulses.sort(key=lambda q: (q.onset_ms, q.row, q.col))
     return Schedule(device=profile.name, pulses=pulses, coding="pulse-trains",
                     params=params.model_dump())
 
 
-def _resolve_pin(row: int, col: int,
-                 reqs: list[tuple[float, float, float, int, PulseTrain]]) -> list[Pulse]:
+def _resolve_pin(reqs: list[tuple[float, float, float, int, PulseTrain]]) -> list[Span]:
     """One pin's requests as non-overlapping pulses: the strongest active request in each
     elementary interval (latest on ties); equal neighbours merged."""
     cuts = sorted({x for on, off, *_ in reqs for x in (on, off)})
@@ -225,8 +245,113 @@ def _resolve_pin(row: int, col: int,
             segments[-1][1] = b
         else:
             segments.append([a, b, best[4]])
-    return [Pulse(row=row, col=col, onset_ms=a, duration_ms=b - a, train=tr)
-            for a, b, tr in segments if b > a]
+    return [Span(a, b - a, tr) for a, b, tr in segments if b > a]
+
+
+class _Fit:
+    """The profile's limits on one pulse-trains stimulus (module docstring, "Within the
+    panel's limits"): the settings of its trains, the power budget, and the refusals that
+    name the parameter to change. ``points`` is the coding's list of [onset, offset,
+    asks]; :meth:`keep_to_budget` ends some of them earlier."""
+
+    def __init__(self, params: PulseTrainParams, profile: DeviceProfile, points: list[list]):
+        self.params = params
+        self.profile = profile
+        self.points = points
+        self._offsets = [pt[1] for pt in points]       # as coded, before any is ended early
+        self._unfitted: Schedule | None = None
+
+    def unfitted(self) -> Schedule:
+        """What would be played without fitting to the limits (for the live loop, whose
+        guard holds the limits itself: :class:`~vtexp.errors.UnsafeStimulus`)."""
+        if self._unfitted is None:
+            requests = defaultdict(list)
+            for seq, ((on, _, asks), off) in enumerate(zip(self.points, self._offsets,
+                                                           strict=True)):
+                for pin, power, tr in asks:
+                    requests[pin].append((on, off, power, seq, tr))
+            pulses = [Pulse(row=r, col=c, onset_ms=q.onset_ms, duration_ms=q.duration_ms,
+                            train=q.what)
+                      for (r, c), reqs in requests.items() for q in _resolve_pin(reqs)]
+            pulses.sort(key=lambda q: (q.onset_ms, q.row, q.col))
+            self._unfitted = Schedule(device=self.profile.name, pulses=pulses,
+                                      coding="pulse-trains", params=self.params.model_dump())
+        return self._unfitted
+
+    def refuse(self, text: str) -> UnsafeStimulus:
+        return UnsafeStimulus(f"pulse-trains on {self.profile.name}: {text}",
+                              schedule=self.unfitted())
+
+    def _used(self, pattern: Pattern) -> list[str]:
+        """'' for the plain trains and/or 'corner_' for Table 4's, as the pattern uses them."""
+        corners = self.params.corner_emphasis and any(p.corner for p in pattern.points)
+        plain = not self.params.corner_emphasis or any(not p.corner for p in pattern.points)
+        return [k for k, used in (("", plain), ("corner_", corners)) if used]
+
+    def check_settings(self, pattern: Pattern) -> None:
+        """Frequency and pulse width of the trains the pattern uses, within the profile's
+        limits of one pulse (amplitudes: :func:`_check_profile`)."""
+        lim = self.profile.limits
+        name = self.profile.name
+        for k in self._used(pattern):
+            f = getattr(self.params, f"{k}frequency_hz")
+            w = getattr(self.params, f"{k}pulse_width_ms")
+            if lim.max_frequency_hz is not None and f > lim.max_frequency_hz:
+                raise self.refuse(f"frequency {f:g} Hz exceeds max_frequency_hz "
+                                  f"{lim.max_frequency_hz:g} Hz of {name}: set {k}frequency_hz "
+                                  f"to at most {lim.max_frequency_hz:g}")
+            if lim.max_pulse_width_ms is not None and w > lim.max_pulse_width_ms:
+                raise self.refuse(f"pulse width {w:g} ms exceeds max_pulse_width_ms "
+                                  f"{lim.max_pulse_width_ms:g} ms of {name}: set "
+                                  f"{k}pulse_width_ms to at most {lim.max_pulse_width_ms:g}")
+            if w >= 1000.0 / f:
+                raise self.refuse(f"pulse width {w:g} ms does not fit in the period of "
+                                  f"{f:g} Hz (always on): set {k}pulse_width_ms below "
+                                  f"{1000.0 / f:g}, or {k}frequency_hz below {1000.0 / w:g}")
+
+    def keep_to_budget(self) -> None:
+        """At most ``max_simultaneous`` pins on at once: where a point's onset would bring
+        more, the oldest point still vibrating that holds a pin no other point holds then
+        stops at that onset (its pins together, so that a phantom point does not move; if
+        none holds a pin of its own, the oldest), until they fit."""
+        budget = self.profile.limits.max_simultaneous
+        pts = self.points
+        active: list[int] = []
+        for k, (on, _, asks) in enumerate(pts):
+            if not asks:
+                continue
+            active = [j for j in active if pts[j][1] > on]
+            active.append(k)
+            while True:
+                holders = Counter(pin for j in active for pin, _, _ in pts[j][2])
+                if len(holders) <= budget:
+                    break
+                older = [j for j in active if pts[j][0] < on]
+                oldest = next((j for j in older
+                               if any(holders[pin] == 1 for pin, _, _ in pts[j][2])),
+                              older[0] if older else None)
+                if oldest is None:
+                    raise self.refuse(
+                        f"{len(holders)} pins would be on at once at {on:.1f} ms (points "
+                        f"beginning together there), above max_simultaneous {budget} of "
+                        f"{self.profile.name}: encode it without phantom points "
+                        f"(subdivisions 1), or set soa_ms to at least 1")
+                pts[oldest][1] = on
+                active.remove(oldest)
+
+    def refusal_to_split(self, e: Unsplittable) -> UnsafeStimulus:
+        """The refusal of a pin that no pause can split (:func:`split_refusal`), naming the
+        values that are too long (``max_on``) or too short (``min_off``) for it."""
+        lim = self.profile.limits
+        p = self.params
+        kinds = [k for k in ("", "corner_") if k == "" or p.corner_emphasis]
+        most, need = longest_splittable_ms(lim), pause_ms(lim)
+        longer = [f"{k}vibration_ms" for k in kinds if getattr(p, f"{k}vibration_ms") > most]
+        shorter = [f"{k}vibration_ms" for k in kinds if getattr(p, f"{k}vibration_ms") <= need]
+        if p.soa_ms is not None and p.soa_ms <= need:
+            shorter.insert(0, "soa_ms")
+        return self.refuse(split_refusal(e, lim, shorten=" and ".join(longer) or "vibration_ms",
+                                         lengthen=" and ".join(shorter) or "soa_ms"))
 
 
 def _tick(t_ms: float) -> float:
