@@ -31,8 +31,9 @@ from typing import Annotated, Literal
 from pydantic import Field, model_validator
 from typing_extensions import Self
 
-from ..errors import InputError
+from ..errors import InputError, UnsafeStimulus
 from ..model import DeviceProfile, LevelDrive, Model, Ms, Pattern, Pulse, Schedule
+from .limits import Unsplittable, most_on_at_once, split_pulses, split_refusal, where
 
 
 class ContourModeParams(Model):
@@ -128,15 +129,102 @@ def contour_modes(pattern: Pattern, profile: DeviceProfile, **params) -> Schedul
                 pulses.append(Pulse(row=r, col=c, onset_ms=0.0, duration_ms=p.static_ms,
                                     level=levels[i]))
     else:
-        seq = list(range(n)) if p.order == "up" else list(range(n - 1, -1, -1))
-        t = 0.0
-        for _ in range(p.cycles):
-            for i in seq:
-                dur, interval = timing[i]
-                for r, c in cells[lines[i]]:
-                    pulses.append(Pulse(row=r, col=c, onset_ms=t, duration_ms=dur,
-                                        level=levels[i]))
-                t += interval
-    return Schedule(device=profile.name, pulses=pulses, coding="contour-modes",
-                    params={**p.model_dump(mode="json"), "line_levels": levels,
-                            "line_timing_ms": [list(x) for x in timing]})
+        for i, t, dur in _dynamic(p, timing):
+            for r, c in cells[lines[i]]:
+                pulses.append(Pulse(row=r, col=c, onset_ms=t, duration_ms=dur,
+                                    level=levels[i]))
+    schedule = Schedule(device=profile.name, pulses=pulses, coding="contour-modes",
+                        params={**p.model_dump(mode="json"), "line_levels": levels,
+                                "line_timing_ms": [list(x) for x in timing]})
+    return _fit(schedule, profile, p, lines, cells, levels, timing)
+
+
+def _dynamic(p: ContourModeParams, timing: list[tuple[float, float]]):
+    """(line index, onset, duration) of the dynamic display, in playing order: the lines
+    one after another from the lowest up (or the top down), ``cycles`` times."""
+    n = len(timing)
+    seq = list(range(n)) if p.order == "up" else list(range(n - 1, -1, -1))
+    t = 0.0
+    for _ in range(p.cycles):
+        for i in seq:
+            dur, interval = timing[i]
+            yield i, t, dur
+            t += interval
+
+
+def _fit(schedule: Schedule, profile: DeviceProfile, p: ContourModeParams, lines: list[int],
+         cells: dict[int, list[tuple[int, int]]], levels: list[int],
+         timing: list[tuple[float, float]]) -> Schedule:
+    """``schedule`` within ``profile``'s limits (:func:`contour_modes`), or refused."""
+    lim = profile.limits
+    name = profile.name
+
+    def refuse(text: str) -> UnsafeStimulus:
+        return UnsafeStimulus(f"contour-modes on {name}: {text}", schedule=schedule)
+
+    if lim.max_level is not None and max(levels, default=0) > lim.max_level:
+        i = max(range(len(levels)), key=lambda j: levels[j])
+        r, c = cells[lines[i]][0] if cells[lines[i]] else (0, 0)
+        if p.levels is not None:
+            fix = f"set levels to values of at most {lim.max_level}"
+        else:
+            top = line_levels(len(levels), p.intensity, min(p.low_level, lim.max_level),
+                              lim.max_level)
+            fix = (f"set high_level to at most {lim.max_level} (levels "
+                   f"{', '.join(map(str, top))}), or give levels")
+        raise refuse(f"{where(r, c, _first_onset(schedule, r, c))}: level {levels[i]} of line "
+                     f"{lines[i]} exceeds max_level {lim.max_level} of {name} (levels "
+                     f"{', '.join(map(str, levels))} from the lowest line up): {fix}")
+
+    try:
+        pulses = split_pulses(schedule.pulses, lim)
+    except Unsplittable as e:
+        key = "static_ms" if p.display == "static" else \
+            "fixed_ms" if p.timing == "fixed" else "varied_ms"
+        what = key if p.display == "static" else f"every duration in {key}"
+        raise refuse(split_refusal(e, lim, shorten=what,
+                                   lengthen=f"every duration and interval in {key}")) from None
+    fitted_schedule = schedule if pulses is schedule.pulses else \
+        schedule.model_copy(update={"pulses": pulses})
+
+    most, when = most_on_at_once(((q.row, q.col), q.onset_ms, q.offset_ms)
+                                 for q in fitted_schedule.pulses)
+    if most > lim.max_simultaneous:
+        raise refuse(_budget_refusal(p, lim, name, lines, cells, timing, most, when))
+    return fitted_schedule
+
+
+def _first_onset(schedule: Schedule, row: int, col: int) -> float:
+    return min((q.onset_ms for q in schedule.pulses if (q.row, q.col) == (row, col)),
+               default=0.0)
+
+
+def _budget_refusal(p: ContourModeParams, lim, name: str, lines: list[int],
+                    cells: dict[int, list[tuple[int, int]]], timing: list[tuple[float, float]],
+                    most: int, when: float) -> str:
+    """Why more than ``max_simultaneous`` motors would be on, and what would play it."""
+    b = lim.max_simultaneous
+    sizes = [len(set(cells[k])) for k in lines]
+    head = (f"{most} motors would be on at once at {when:.1f} ms, above max_simultaneous {b} "
+            f"of {name}")
+    if max(sizes, default=0) > b:
+        k = lines[max(range(len(sizes)), key=lambda i: sizes[i])]
+        return (f"{head}: line {k} alone has {max(sizes)} motors, and a line's motors play "
+                f"together (seed 000 Table 2); no contour-modes parameter changes that: "
+                f"encode the image with fewer motors on a line (covered-cells: a higher "
+                f"fill_threshold; height-contours: fewer lines)")
+    key = "fixed_ms" if p.timing == "fixed" else "varied_ms"
+    apart = [[d, max(d, i)] for d, i in timing]          # one line at a time
+    apart_text = f"set {key} to {apart[0] if p.timing == 'fixed' else apart}"
+    if p.display == "static":
+        dyn, _ = most_on_at_once((cell, t, t + d) for i, t, d in _dynamic(p, timing)
+                                 for cell in cells[lines[i]])
+        if dyn <= b:
+            return (f"{head}: every line plays at once in the static display; set display "
+                    f"to dynamic (with timing {p.timing}: at most {dyn} motors at once)")
+        return (f"{head}: every line plays at once in the static display; set display to "
+                f"dynamic and {apart_text} (each interval at least its duration: one line "
+                f"at a time, at most {max(sizes)} motors)")
+    return (f"{head}: consecutive lines overlap where a line's duration outlasts its "
+            f"interval; {apart_text} (each interval at least its duration: one line at a "
+            f"time, at most {max(sizes)} motors)")
