@@ -25,10 +25,11 @@ The split (:func:`split_activations`), for the pulses of one actuator:
   ``max_on_ms`` on a profile without a cooling time: the live loop's rest), plus one
   1/64 ms tick so that floating-point rounding never leaves it shorter than the limit.
 
-It fails (:class:`Unsplittable`) only where no onset leaves room for the pause: a single
-pulse longer than ``max_on_ms`` less the pause (more precisely: one that holds the
-actuator on past ``max_on_ms`` from the start of its activation), or an activation
-shorter than the pause that must end before the next one begins.
+It fails (:class:`Unsplittable`) only where no onset leaves room for the pause: a pulse
+longer than ``max_on_ms`` less the pause (one that holds the actuator on past
+``max_on_ms`` from the start of its activation), or pulses shorter than the pause that it
+would leave out whole (``crowded``: onsets closer together than the pause), or an
+activation too short to end a pause before the next one begins.
 """
 
 from __future__ import annotations
@@ -64,18 +65,20 @@ class Span:
 
 
 class Unsplittable(Exception):
-    """No pause can be made without moving an onset: ``kind`` ``max_on`` (the activation
-    ``start_ms``..``end_ms`` is too long, and no onset in it leaves room for a pause) or
-    ``min_off`` (it is too short to end a pause before the next one begins at
-    ``next_ms``)."""
+    """No pause can be made: ``kind`` ``max_on`` (the activation ``start_ms``..``end_ms``
+    is too long, and no onset in it leaves room for a pause: none late enough, or,
+    ``crowded``, every one would leave out a whole pulse that began less than a pause
+    before it) or ``min_off`` (it is too short, or ends too soon after a pulse began, to
+    end a pause before the next one begins at ``next_ms``)."""
 
     def __init__(self, kind: str, start_ms: float, end_ms: float,
-                 next_ms: float | None = None):
+                 next_ms: float | None = None, *, crowded: bool = False):
         super().__init__(kind)
         self.kind = kind
         self.start_ms = start_ms
         self.end_ms = end_ms
         self.next_ms = next_ms
+        self.crowded = crowded
         #: (row, col), set by :func:`split_pulses`
         self.actuator: tuple[int, int] | None = None
 
@@ -145,7 +148,7 @@ def split_activations(spans: list[Span], limits: SafetyLimits,
                 whole = [t for t in fits
                          if not any(t - pause <= a < t and b <= t for a, b in asks)]
                 if not (keep or whole):
-                    raise Unsplittable("max_on", s, e)
+                    raise Unsplittable("max_on", s, e, crowded=bool(fits))
                 cut = max(keep or whole)
                 break
             if i + 1 < len(runs) and runs[i + 1][0] - e < limits.min_off_ms:
@@ -247,22 +250,25 @@ def most_on_at_once(pulses: Iterable[tuple[Hashable, float, float]]
     return best, when
 
 
-def split_refusal(e: Unsplittable, limits: SafetyLimits, *, shorten: str,
-                  lengthen: str) -> str:
-    """What :class:`Unsplittable` ``e`` (``actuator`` set) refuses, and the value that
-    works: at most :func:`longest_splittable_ms` for the parameter(s) ``shorten`` (a
-    pulse that long always leaves room for a pause), or, for a rest too short, at least
-    the pause for those named by ``lengthen``."""
+def split_refusal(e: Unsplittable, limits: SafetyLimits) -> str:
+    """What :class:`Unsplittable` ``e`` (``actuator`` set) refuses, for the coding to add
+    what to change."""
     row, col = e.actuator
     length = e.end_ms - e.start_ms
     if e.kind == "max_on":
+        why = ("every pause would leave out a whole pulse that began less than a pause "
+               "before it" if e.crowded else "no onset in it is late enough")
         return (f"{where(row, col, e.start_ms)} would be on for {length:.1f} ms without a "
-                f"pause, above max_on_ms {limits.max_on_ms:g} ms, and no onset in it leaves "
-                f"room for a pause of {limits.rest_ms:g} ms: set {shorten} to at most "
-                f"{whole_ms_below(longest_splittable_ms(limits))}")
-    return (f"{where(row, col, e.start_ms)} is on for only {length:.1f} ms and begins again "
-            f"at {e.next_ms:.1f} ms, too soon to rest min_off_ms {limits.min_off_ms:g} ms "
-            f"between: set {lengthen} to at least {math.floor(pause_ms(limits)) + 1}")
+                f"pause, above max_on_ms {limits.max_on_ms:g} ms, and it cannot rest "
+                f"{limits.rest_ms:g} ms before an onset: {why}")
+    return (f"{where(row, col, e.start_ms)} is on for {length:.1f} ms and begins again at "
+            f"{e.next_ms:.1f} ms, too soon to rest min_off_ms {limits.min_off_ms:g} ms "
+            f"between without leaving out a whole pulse")
+
+
+def at_least_ms(x_ms: float) -> int:
+    """The smallest whole number of ms above ``x_ms`` (a value to suggest for "at least")."""
+    return math.floor(x_ms) + 1
 
 
 def whole_ms_below(x_ms: float) -> int:

@@ -41,6 +41,37 @@ Decisions:
   interval it plays the strongest request active then — the one of most
   electrical power, A²·l_p·f, the latest on ties — and the intervals are
   written as consecutive pulses.
+- **Within the panel's limits by construction** (issue 20). The percept is
+  carried by the points' onsets, one SOA apart (apparent movement: Tactile
+  Brush's SOA is onset to onset), and by each point's pins together (a phantom
+  point: §3.2); these are kept. What gives way is how long a train lasts, and
+  only where a limit needs it, never lengthened:
+
+  - *power budget* (``max_simultaneous``): where a point's onset would bring
+    more pins on than the budget, the oldest point still vibrating stops
+    there, all its pins together (so that it does not move), preferring one
+    that holds a pin no newer point holds; the newest points carry the
+    movement (the live loop's guard also keeps what the newest frame asks);
+  - *on-time* (``max_on_ms``): with phantom points one pin serves several
+    consecutive points (a pin and the points around it) and stays on
+    throughout, on long outlines past ``max_on_ms`` (a horse silhouette,
+    Grace Hopper's portrait: up to ~1150 ms). The pin rests ``min_off_ms``
+    just before the onset of a point that uses it, the latest that leaves at
+    most ``max_on_ms`` before the rest, and so on
+    (:func:`vtexp.coding.limits.split_activations`). At 40 Hz a pulse comes
+    every 25 ms, so a 20 ms rest takes out at most one 1 ms pulse of a train;
+    and the point after the rest starts on that pin afresh, as seed 002's
+    stimuli begin each point;
+  - *cooling* (``min_off_ms``): a pin that would start again less than
+    ``min_off_ms`` after it stopped ends its earlier train that much sooner.
+
+  Refused, naming the parameter and a value that works
+  (:class:`~vtexp.errors.UnsafeStimulus`): a frequency or pulse width above the
+  profile's limits (amplitudes: :class:`~vtexp.errors.InputError`, as before);
+  a vibration so long that no onset leaves room for the rest (at most
+  ``max_on_ms`` less the rest always does); vibrations or SOAs shorter than the
+  rest, which it would leave out whole. With seed 002's values (Tables 2-4,
+  Tactile Brush's SOA) none of these happens on sma_5x5.
 
 References
 ----------
@@ -74,10 +105,12 @@ from ..model import (
 from .limits import (
     Span,
     Unsplittable,
+    at_least_ms,
     longest_splittable_ms,
     pause_ms,
     split_activations,
     split_refusal,
+    whole_ms_below,
 )
 
 PhantomModel = Literal["linear", "energy"]
@@ -168,7 +201,9 @@ def pulse_trains(pattern: Pattern, profile: DeviceProfile, *, amplitude_v: float
     four pins with intensities from ``phantom_model`` (:func:`phantom_weights`),
     as amplitudes. Where consecutive points' requests for one pin overlap, the
     pin plays the strongest one in each interval (module docstring). The path
-    is played ``loops`` times, the SOA rule running on across the seams.
+    is played ``loops`` times, the SOA rule running on across the seams. Where
+    the profile's limits of time and power need it, trains end sooner and pins
+    rest before an onset (module docstring, "Within the panel's limits").
 
     Raises
     ------
@@ -176,6 +211,9 @@ def pulse_trains(pattern: Pattern, profile: DeviceProfile, *, amplitude_v: float
         If the profile is not driven by pulse trains, the pattern was made for
         another array size, or an amplitude exceeds the profile's
         ``max_amplitude_v``.
+    UnsafeStimulus
+        What cannot be fitted to the profile's limits, naming the parameter to
+        change and a value that works; it carries the schedule as coded.
     """
     params = PulseTrainParams(
         amplitude_v=amplitude_v, frequency_hz=frequency_hz, pulse_width_ms=pulse_width_ms,
@@ -340,18 +378,27 @@ class _Fit:
                 active.remove(oldest)
 
     def refusal_to_split(self, e: Unsplittable) -> UnsafeStimulus:
-        """The refusal of a pin that no pause can split (:func:`split_refusal`), naming the
-        values that are too long (``max_on``) or too short (``min_off``) for it."""
+        """The refusal of a pin that no rest can split (:func:`split_refusal`), naming what
+        is too long or too short for it. A pin fails to split only where a request on it
+        outlasts ``max_on_ms`` less the rest (a vibration that long), or is shorter than
+        the rest (a vibration, or an SOA at which the budget ends a point, that short)."""
         lim = self.profile.limits
         p = self.params
         kinds = [k for k in ("", "corner_") if k == "" or p.corner_emphasis]
-        most, need = longest_splittable_ms(lim), pause_ms(lim)
-        longer = [f"{k}vibration_ms" for k in kinds if getattr(p, f"{k}vibration_ms") > most]
-        shorter = [f"{k}vibration_ms" for k in kinds if getattr(p, f"{k}vibration_ms") <= need]
-        if p.soa_ms is not None and p.soa_ms <= need:
-            shorter.insert(0, "soa_ms")
-        return self.refuse(split_refusal(e, lim, shorten=" and ".join(longer) or "vibration_ms",
-                                         lengthen=" and ".join(shorter) or "soa_ms"))
+        if e.kind == "max_on" and not e.crowded:
+            most = longest_splittable_ms(lim)
+            keys = [f"{k}vibration_ms" for k in kinds if getattr(p, f"{k}vibration_ms") > most]
+            fix = f"{' and '.join(keys) or 'vibration_ms'} to at most {whole_ms_below(most)}"
+        else:
+            need = pause_ms(lim)
+            keys = [f"{k}vibration_ms" for k in kinds
+                    if getattr(p, f"{k}vibration_ms") <= need]
+            shortest = min(getattr(p, f"{k}vibration_ms") for k in kinds)
+            soa = p.soa_ms if p.soa_ms is not None else tactile_brush_soa_ms(shortest)
+            if soa <= need:
+                keys.insert(0, "soa_ms")
+            fix = f"{' and '.join(keys) or 'soa_ms'} to at least {at_least_ms(need)}"
+        return self.refuse(f"{split_refusal(e, lim)}: set {fix}")
 
 
 def _tick(t_ms: float) -> float:

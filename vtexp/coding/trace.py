@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
-import math
 from typing import Annotated
 
 from pydantic import Field
 
 from ..errors import InputError, UnsafeStimulus
 from ..model import DeviceProfile, LevelDrive, Model, Ms, Pattern, Pulse, Schedule
-from .limits import Unsplittable, most_on_at_once, split_pulses, split_refusal, where
+from .limits import (
+    Unsplittable,
+    at_least_ms,
+    most_on_at_once,
+    split_pulses,
+    split_refusal,
+    where,
+)
 
 
 class SequentialTraceParams(Model):
@@ -90,8 +96,15 @@ def _fit(schedule: Schedule, profile: DeviceProfile) -> Schedule:
     try:
         pulses = split_pulses(schedule.pulses, lim)
     except Unsplittable as e:
-        raise refuse(split_refusal(e, lim, shorten="duration_ms",
-                                   lengthen="duration_ms and soa_ms")) from None
+        # A tactor's pulses chain only where it comes back before its pulse has ended (and
+        # rested): at soa_ms >= duration_ms + min_off_ms (and some) none ever does.
+        fixes = []
+        if d > lim.max_on_ms:
+            fixes.append(f"duration_ms to at most {lim.max_on_ms:g}")
+        if e.kind == "min_off" or e.end_ms - e.start_ms > d:      # pulses that chain
+            fixes.append(f"soa_ms to at least "
+                         f"{at_least_ms(min(d, lim.max_on_ms) + lim.min_off_ms)}")
+        raise refuse(f"{split_refusal(e, lim)}: set {', and '.join(fixes)}") from None
     fitted_schedule = schedule if pulses is schedule.pulses else \
         schedule.model_copy(update={"pulses": pulses})
     most, when = most_on_at_once(((q.row, q.col), q.onset_ms, q.offset_ms)
@@ -101,5 +114,5 @@ def _fit(schedule: Schedule, profile: DeviceProfile) -> Schedule:
         raise refuse(f"{most} tactors would be on at once at {when:.1f} ms, above "
                      f"max_simultaneous {b} of {profile.name} (a tactor vibrates "
                      f"{d:g} ms and the next begins {soa:g} ms after it): set duration_ms "
-                     f"to at most {b * soa - 1:g}, or soa_ms to at least {math.floor(d / b) + 1}")
+                     f"to at most {b * soa - 1:g}, or soa_ms to at least {at_least_ms(d / b)}")
     return fitted_schedule
