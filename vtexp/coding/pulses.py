@@ -249,13 +249,8 @@ def pulse_trains(pattern: Pattern, profile: DeviceProfile, *, amplitude_v: float
     fit = _Fit(params, profile, points)
     fit.check_settings(pattern)
     fit.keep_to_budget()
-    requests: dict[tuple[int, int], list[tuple[float, float, float, int, PulseTrain]]] = \
-        defaultdict(list)
-    for seq, (on, off, asks) in enumerate(points):
-        for pin, power, tr in asks:
-            requests[pin].append((on, off, power, seq, tr))
     pulses = []
-    for (row, col), reqs in requests.items():
+    for (row, col), reqs in _requests(points).items():
         spans = _resolve_pin(reqs)
         try:
             spans = split_activations(spans, profile.limits, [(r[0], r[1]) for r in reqs])
@@ -267,6 +262,18 @@ def pulse_trains(pattern: Pattern, profile: DeviceProfile, *, amplitude_v: float
     pulses.sort(key=lambda q: (q.onset_ms, q.row, q.col))
     return Schedule(device=profile.name, pulses=pulses, coding="pulse-trains",
                     params=params.model_dump())
+
+
+def _requests(points: list[list], offsets: list[float] | None = None
+              ) -> dict[tuple[int, int], list[tuple[float, float, float, int, PulseTrain]]]:
+    """Each pin's requests (onset, offset, power, point's number, train) from the points'
+    [onset, offset, asks]; ``offsets`` instead of the points' own, if given."""
+    requests = defaultdict(list)
+    for seq, (on, off, asks) in enumerate(points):
+        off = off if offsets is None else offsets[seq]
+        for pin, power, tr in asks:
+            requests[pin].append((on, off, power, seq, tr))
+    return requests
 
 
 def _resolve_pin(reqs: list[tuple[float, float, float, int, PulseTrain]]) -> list[Span]:
@@ -303,14 +310,10 @@ class _Fit:
         """What would be played without fitting to the limits (for the live loop, whose
         guard holds the limits itself: :class:`~vtexp.errors.UnsafeStimulus`)."""
         if self._unfitted is None:
-            requests = defaultdict(list)
-            for seq, ((on, _, asks), off) in enumerate(zip(self.points, self._offsets,
-                                                           strict=True)):
-                for pin, power, tr in asks:
-                    requests[pin].append((on, off, power, seq, tr))
             pulses = [Pulse(row=r, col=c, onset_ms=q.onset_ms, duration_ms=q.duration_ms,
                             train=q.what)
-                      for (r, c), reqs in requests.items() for q in _resolve_pin(reqs)]
+                      for (r, c), reqs in _requests(self.points, self._offsets).items()
+                      for q in _resolve_pin(reqs)]
             pulses.sort(key=lambda q: (q.onset_ms, q.row, q.col))
             self._unfitted = Schedule(device=self.profile.name, pulses=pulses,
                                       coding="pulse-trains", params=self.params.model_dump())
