@@ -13,12 +13,15 @@ The split (:func:`split_activations`), for the pulses of one actuator:
 
 - an *activation* is a run of its pulses that overlap or touch, merged as
   ``check_schedule`` merges them;
-- **onsets are kept, nothing is lengthened or moved**: a pause is made by ending what
-  came before it earlier; a piece of a pulse that falls in a pause is left out;
+- **nothing is lengthened, and no pulse is left out whole**: a pause is made by ending
+  what came before it earlier; a piece of a pulse that falls in a pause is left out;
 - an activation longer than ``max_on_ms`` gets a pause just before the latest onset of a
   pulse in it that leaves at most ``max_on_ms`` of it before the pause, and so on from
   that onset (in a trace or a train of apparent movement an onset is where the next
-  point begins: the pause makes it a fresh start of that actuator);
+  point begins: the pause makes it a fresh start of that actuator). **Onsets are kept**:
+  a pause that would take in another pulse's onset is taken only where no other will
+  do, and then that pulse starts when the pause ends (it is shortened from its start,
+  by less than the pause);
 - an activation that begins less than ``min_off_ms`` after the previous one ended: the
   previous one ends a pause before it begins;
 - the pause is :attr:`~vtexp.model.SafetyLimits.rest_ms` (``min_off_ms``, or a tenth of
