@@ -357,10 +357,11 @@ def image_case(seed: int, work: Path) -> Case:
     img = work / ("image" + src.suffix)
     img.write_bytes(data)
     out = work / "pattern.json"
-    # each pipeline on a device its paper's coding drives (not snake-corners on the SMA
-    # pins: that refuses the undamaged photograph as unsafe, a pin on past max_on_ms)
+    # each pipeline on a device its paper's coding drives (snake-corners on the SMA pins
+    # too: the pulse-trains coding rests a pin rather than refuse the photograph, issue 20)
     pipeline, device = rng.choice([("edge-trace", "vest_6x8"), ("edge-trace", "pad_20x20"),
-                                   ("height-contours", "pad_20x20")])
+                                   ("height-contours", "pad_20x20"),
+                                   ("snake-corners", "sma_5x5")])
     case.mutations.append(f"{pipeline}:{device}")
     # The pipeline's own threshold (--background none): what is damaged here is the file;
     # the photograph is a portrait on a dark ground that figure-ground separation from a

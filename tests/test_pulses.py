@@ -213,19 +213,79 @@ def test_study_shapes_pass_safety_on_the_panel(shape):
     check_schedule(pulse_trains(pat, SMA), SMA)
 
 
-def test_what_the_panel_limits_refuse():
-    """The limits still bite: a pin shared by three consecutive points is on for
-    2 SOA + L without a pause, so a long vibration time (L = 700 ms at Tactile Brush's
-    SOA) exceeds max_on_ms; a panel rated for less than the paper's 2 V refuses it."""
+def unbound(profile: DeviceProfile) -> DeviceProfile:
+    """``profile`` with limits of time and budget that nothing reaches: what a coding plays
+    when it has nothing to fit."""
+    lim = profile.limits.model_copy(update={"max_on_ms": 1e9, "min_off_ms": 0.0,
+                                            "max_simultaneous": 10_000})
+    return profile.model_copy(update={"limits": lim})
+
+
+def assert_only_shortened(fitted, free):
+    """Every pulse of ``fitted`` lies where its pin is on in ``free``, with a train that pin
+    plays there: fitting to the limits took time away and added none. (Where a point
+    stops early for the budget, a weaker train of the next point on the same pin may play
+    where the stopped one was the strongest.)"""
+    pins = by_pin(free)
+    for q in fitted.pulses:
+        mine = sorted(pins[(q.row, q.col)], key=lambda f: f.onset_ms)
+        assert q.train in [f.train for f in mine], q
+        t = q.onset_ms
+        for f in mine:
+            if f.onset_ms <= t < f.offset_ms:
+                t = f.offset_ms
+        assert t >= q.offset_ms, q
+
+
+def test_a_pin_on_too_long_rests_before_a_point_begins():
+    """A pin shared by three consecutive points is on for 2 SOA + L without a pause: with
+    L = 700 ms at Tactile Brush's SOA, past max_on_ms. The pin rests min_off_ms just before
+    the onset of the last point that leaves at most max_on_ms before the rest (issue 20):
+    the schedule passes the safety check, every point's onset is kept, nothing is longer.
+    A panel rated for less than the paper's 2 V still refuses it."""
     pat = snake_corners(render_shape(shape="circle"), 5, 5)
     assert longest_shared_run(pat) == 3
     expected = 2 * tactile_brush_soa_ms(700) + 700
     assert expected > SMA.limits.max_on_ms
+    free = pulse_trains(pat, unbound(SMA), corner_emphasis=False, vibration_ms=700)
     with pytest.raises(UnsafeStimulus, match=f"on for {expected:.1f} ms.*max_on_ms"):
-        check_schedule(pulse_trains(pat, SMA, corner_emphasis=False, vibration_ms=700), SMA)
+        check_schedule(free.model_copy(update={"device": "sma_5x5"}), SMA)
+    fitted = pulse_trains(pat, SMA, corner_emphasis=False, vibration_ms=700)
+    check_schedule(fitted, SMA)
+    assert_only_shortened(fitted, free)
+    on = [(p.row, p.col, p.onset_ms, p.offset_ms) for p in fitted.pulses]
+    soa = tactile_brush_soa_ms(700)
+    for k, pt in enumerate(pat.ordered()):
+        t0 = round(k * soa * 64) / 64
+        for (r, c), _ in phantom_weights(pt.row, pt.col):
+            assert any((a, b) == (r, c) and o <= t0 < e for a, b, o, e in on)
+    rests = [b.onset_ms - a.offset_ms for pulses in by_pin(fitted).values()
+             for a, b in itertools.pairwise(sorted(pulses, key=lambda q: q.onset_ms))
+             if b.onset_ms > a.offset_ms]
+    assert rests and min(rests) >= SMA.limits.min_off_ms
     weak = SMA.model_copy(update={"limits": SMA.limits.model_copy(update={"max_amplitude_v": 1.0})})
     with pytest.raises(UnsafeStimulus, match="max_amplitude_v"):
         check_schedule(pulse_trains(pat, SMA, corner_emphasis=False), weak)
+
+
+@pytest.mark.filterwarnings("ignore:pulse-trains:UserWarning")
+def test_what_cannot_be_split_is_refused_naming_the_parameter():
+    """Two points on one pin 15 ms apart, each 995 ms long: on for 1010 ms, and no onset
+    leaves room for a 20 ms rest. The coding says which parameter to change, and to what;
+    the value it names works."""
+    pat = path([(2, 2), (2, 2)])
+    with pytest.raises(UnsafeStimulus, match=r"pulse-trains on sma_5x5: actuator \(row 2, "
+                       r"col 2\) at 0.0 ms would be on for 1010.0 ms.*set vibration_ms to at "
+                       r"most 979") as e:
+        pulse_trains(pat, SMA, vibration_ms=995, soa_ms=15, corner_emphasis=False)
+    assert e.value.schedule is not None and e.value.schedule.pulses    # for the live loop
+    check_schedule(pulse_trains(pat, SMA, vibration_ms=979, soa_ms=15,
+                                corner_emphasis=False), SMA)
+    with pytest.raises(UnsafeStimulus, match="set frequency_hz to at most 50"):
+        pulse_trains(pat, SMA, frequency_hz=60)
+    with pytest.raises(UnsafeStimulus, match="set corner_pulse_width_ms to at most 1.5"):
+        pulse_trains(path([(2, 2)], corners=[0]), SMA, corner_pulse_width_ms=2)
+    pulse_trains(pat, SMA, corner_pulse_width_ms=2)          # no corner: not used
 
 
 # --------------------------------------------------------------------------- whirlpool
@@ -322,10 +382,15 @@ def test_whirlpool_schedule_on_the_panel():
         img = render_whirlpool(turns=turns, inner=0.3)
         check_schedule(pulse_trains(spiral_path(img, 5, 5, subdivisions=1), SMA), SMA)
         check_schedule(pulse_trains(spiral_path(img, 5, 5), SMA), SMA)
-    # Played much faster, a pin comes back before it has rested (SOA 30 ms), or too
-    # many pins overlap for the power budget (SOA 20 ms).
+    # Played much faster, a pin would come back before it has rested (SOA 30 ms), or too
+    # many pins would overlap for the power budget (SOA 20 ms). The coding ends the
+    # earlier train min_off_ms before the pin begins again, and the oldest point still
+    # vibrating when a new one would take more pins than the budget (issue 20).
     four = spiral_path(render_whirlpool(turns=4, inner=0.3), 5, 5)
-    with pytest.raises(UnsafeStimulus, match="below min_off_ms 20"):
-        check_schedule(pulse_trains(four, SMA, soa_ms=30), SMA)
-    with pytest.raises(UnsafeStimulus, match="above max_simultaneous 8"):
-        check_schedule(pulse_trains(four, SMA, soa_ms=20), SMA)
+    for soa, refusal in ((30, "below min_off_ms 20"), (20, "above max_simultaneous 8")):
+        free = pulse_trains(four, unbound(SMA), soa_ms=soa)
+        with pytest.raises(UnsafeStimulus, match=refusal):
+            check_schedule(free.model_copy(update={"device": "sma_5x5"}), SMA)
+        fitted = pulse_trains(four, SMA, soa_ms=soa)
+        check_schedule(fitted, SMA)
+        assert_only_shortened(fitted, free)

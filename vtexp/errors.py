@@ -50,7 +50,21 @@ class InputError(VtexpError):
 
 
 class UnsafeStimulus(VtexpError):
-    """A Schedule would exceed the device profile's safety limits."""
+    """A Schedule would exceed the device profile's safety limits.
+
+    Parameters
+    ----------
+    message:
+        Which limit, where (actuator and time), and what to change.
+    schedule:
+        When a coding refuses a stimulus it cannot fit to the limits, the Schedule it
+        would have played, unfitted: for a caller that holds the limits itself as it
+        plays (the live loop's :class:`~vtexp.safety.StreamGuard`); otherwise None.
+    """
+
+    def __init__(self, message: str, *, schedule=None):
+        super().__init__(message)
+        self.schedule = schedule
 
 
 class DeviceError(VtexpError):

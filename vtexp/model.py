@@ -137,6 +137,14 @@ class SafetyLimits(Model):
     max_simultaneous: Annotated[int, Field(ge=1)] = Field(
         description="most actuators on at the same moment (power budget)")
 
+    @property
+    def rest_ms(self) -> float:
+        """The pause that splits an activation longer than ``max_on_ms``: ``min_off_ms``,
+        or, for a profile without a cooling time, a tenth of ``max_on_ms``, so that it is
+        a real pause (at most 91 % on). The live loop rests that long after it cuts a train
+        (:class:`vtexp.safety.StreamGuard`); the codings split with it (issue 20)."""
+        return self.min_off_ms if self.min_off_ms > 0 else 0.1 * self.max_on_ms
+
 
 class DeviceProfile(Model):
     name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_\-]+$")]

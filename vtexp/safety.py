@@ -222,8 +222,7 @@ class StreamGuard:
         self.min_off_ms = lim.min_off_ms
         self.budget = lim.max_simultaneous
         self.margin_ms = min(margin_ms, lim.max_on_ms / 2)
-        self.rest_ms = rest_ms if rest_ms is not None else (
-            lim.min_off_ms if lim.min_off_ms > 0 else 0.1 * lim.max_on_ms)
+        self.rest_ms = rest_ms if rest_ms is not None else lim.rest_ms
         self.last_off_ms = last_off_ms if last_off_ms is not None else {}
         self.on_since: dict[Actuator, float] = {}
         self.rest_until: dict[Actuator, float] = {}

@@ -41,6 +41,37 @@ Decisions:
   interval it plays the strongest request active then — the one of most
   electrical power, A²·l_p·f, the latest on ties — and the intervals are
   written as consecutive pulses.
+- **Within the panel's limits by construction** (issue 20). The percept is
+  carried by the points' onsets, one SOA apart (apparent movement: Tactile
+  Brush's SOA is onset to onset), and by each point's pins together (a phantom
+  point: §3.2); these are kept. What gives way is how long a train lasts, and
+  only where a limit needs it, never lengthened:
+
+  - *power budget* (``max_simultaneous``): where a point's onset would bring
+    more pins on than the budget, the oldest point still vibrating stops
+    there, all its pins together (so that it does not move), preferring one
+    that holds a pin no newer point holds; the newest points carry the
+    movement (the live loop's guard also keeps what the newest frame asks);
+  - *on-time* (``max_on_ms``): with phantom points one pin serves several
+    consecutive points (a pin and the points around it) and stays on
+    throughout, on long outlines past ``max_on_ms`` (a horse silhouette,
+    Grace Hopper's portrait: up to ~1150 ms). The pin rests ``min_off_ms``
+    just before the onset of a point that uses it, the latest that leaves at
+    most ``max_on_ms`` before the rest, and so on
+    (:func:`vtexp.coding.limits.split_activations`). At 40 Hz a pulse comes
+    every 25 ms, so a 20 ms rest takes out at most one 1 ms pulse of a train;
+    and the point after the rest starts on that pin afresh, as seed 002's
+    stimuli begin each point;
+  - *cooling* (``min_off_ms``): a pin that would start again less than
+    ``min_off_ms`` after it stopped ends its earlier train that much sooner.
+
+  Refused, naming the parameter and a value that works
+  (:class:`~vtexp.errors.UnsafeStimulus`): a frequency or pulse width above the
+  profile's limits (amplitudes: :class:`~vtexp.errors.InputError`, as before);
+  a vibration so long that no onset leaves room for the rest (at most
+  ``max_on_ms`` less the rest always does); vibrations or SOAs shorter than the
+  rest, which it would leave out whole. With seed 002's values (Tables 2-4,
+  Tactile Brush's SOA) none of these happens on sma_5x5.
 
 References
 ----------
@@ -55,12 +86,12 @@ from __future__ import annotations
 import itertools
 import math
 import warnings
-from collections import defaultdict
+from collections import Counter, defaultdict
 from typing import Annotated, Literal
 
 from pydantic import Field
 
-from ..errors import InputError
+from ..errors import InputError, UnsafeStimulus
 from ..model import (
     DeviceProfile,
     Model,
@@ -70,6 +101,16 @@ from ..model import (
     PulseTrain,
     PulseTrainDrive,
     Schedule,
+)
+from .limits import (
+    Span,
+    Unsplittable,
+    at_least_ms,
+    longest_splittable_ms,
+    pause_ms,
+    split_activations,
+    split_refusal,
+    whole_ms_below,
 )
 
 PhantomModel = Literal["linear", "energy"]
@@ -160,7 +201,9 @@ def pulse_trains(pattern: Pattern, profile: DeviceProfile, *, amplitude_v: float
     four pins with intensities from ``phantom_model`` (:func:`phantom_weights`),
     as amplitudes. Where consecutive points' requests for one pin overlap, the
     pin plays the strongest one in each interval (module docstring). The path
-    is played ``loops`` times, the SOA rule running on across the seams.
+    is played ``loops`` times, the SOA rule running on across the seams. Where
+    the profile's limits of time and power need it, trains end sooner and pins
+    rest before an onset (module docstring, "Within the panel's limits").
 
     Raises
     ------
@@ -168,6 +211,9 @@ def pulse_trains(pattern: Pattern, profile: DeviceProfile, *, amplitude_v: float
         If the profile is not driven by pulse trains, the pattern was made for
         another array size, or an amplitude exceeds the profile's
         ``max_amplitude_v``.
+    UnsafeStimulus
+        What cannot be fitted to the profile's limits, naming the parameter to
+        change and a value that works; it carries the schedule as coded.
     """
     params = PulseTrainParams(
         amplitude_v=amplitude_v, frequency_hz=frequency_hz, pulse_width_ms=pulse_width_ms,
@@ -182,13 +228,12 @@ def pulse_trains(pattern: Pattern, profile: DeviceProfile, *, amplitude_v: float
                          pulse_width_ms=corner_pulse_width_ms), corner_vibration_ms)
 
     # Each point asks its pins for a train over [onset, onset + duration).
-    requests: dict[tuple[int, int], list[tuple[float, float, float, int, PulseTrain]]] = \
-        defaultdict(list)
+    points: list[list] = []            # [onset, offset, [(pin, power, train), ...]]
     t = 0.0
-    seq = 0
     for _ in range(loops):
         for p in pattern.ordered():
             train, dur = corner if (corner_emphasis and p.corner) else plain
+            asks = []
             for pin, intensity in phantom_weights(p.row, p.col, phantom_model):
                 # Whole volts at full intensity; shares rounded down to 0.1 mV, never up.
                 amp = train.amplitude_v if intensity >= 1.0 else \
@@ -196,22 +241,42 @@ def pulse_trains(pattern: Pattern, profile: DeviceProfile, *, amplitude_v: float
                 if amp <= 0:
                     continue
                 tr = train.model_copy(update={"amplitude_v": amp})
-                power = amp * amp * tr.pulse_width_ms * tr.frequency_hz
-                on = _tick(t)
-                requests[pin].append((on, on + _tick(dur), power, seq, tr))
-            seq += 1
+                asks.append((pin, amp * amp * tr.pulse_width_ms * tr.frequency_hz, tr))
+            on = _tick(t)
+            points.append([on, on + _tick(dur), asks])
             t += soa_ms if soa_ms is not None else tactile_brush_soa_ms(dur)
 
+    fit = _Fit(params, profile, points)
+    fit.check_settings(pattern)
+    fit.keep_to_budget()
     pulses = []
-    for (row, col), reqs in requests.items():
-        pulses.extend(_resolve_pin(row, col, reqs))
+    for (row, col), reqs in _requests(points).items():
+        spans = _resolve_pin(reqs)
+        try:
+            spans = split_activations(spans, profile.limits, [(r[0], r[1]) for r in reqs])
+        except Unsplittable as e:
+            e.actuator = (row, col)
+            raise fit.refusal_to_split(e) from None
+        pulses.extend(Pulse(row=row, col=col, onset_ms=q.onset_ms, duration_ms=q.duration_ms,
+                            train=q.what) for q in spans)
     pulses.sort(key=lambda q: (q.onset_ms, q.row, q.col))
     return Schedule(device=profile.name, pulses=pulses, coding="pulse-trains",
                     params=params.model_dump())
 
 
-def _resolve_pin(row: int, col: int,
-                 reqs: list[tuple[float, float, float, int, PulseTrain]]) -> list[Pulse]:
+def _requests(points: list[list], offsets: list[float] | None = None
+              ) -> dict[tuple[int, int], list[tuple[float, float, float, int, PulseTrain]]]:
+    """Each pin's requests (onset, offset, power, point's number, train) from the points'
+    [onset, offset, asks]; ``offsets`` instead of the points' own, if given."""
+    requests = defaultdict(list)
+    for seq, (on, off, asks) in enumerate(points):
+        off = off if offsets is None else offsets[seq]
+        for pin, power, tr in asks:
+            requests[pin].append((on, off, power, seq, tr))
+    return requests
+
+
+def _resolve_pin(reqs: list[tuple[float, float, float, int, PulseTrain]]) -> list[Span]:
     """One pin's requests as non-overlapping pulses: the strongest active request in each
     elementary interval (latest on ties); equal neighbours merged."""
     cuts = sorted({x for on, off, *_ in reqs for x in (on, off)})
@@ -225,8 +290,118 @@ def _resolve_pin(row: int, col: int,
             segments[-1][1] = b
         else:
             segments.append([a, b, best[4]])
-    return [Pulse(row=row, col=col, onset_ms=a, duration_ms=b - a, train=tr)
-            for a, b, tr in segments if b > a]
+    return [Span(a, b - a, tr) for a, b, tr in segments if b > a]
+
+
+class _Fit:
+    """The profile's limits on one pulse-trains stimulus (module docstring, "Within the
+    panel's limits"): the settings of its trains, the power budget, and the refusals that
+    name the parameter to change. ``points`` is the coding's list of [onset, offset,
+    asks]; :meth:`keep_to_budget` ends some of them earlier."""
+
+    def __init__(self, params: PulseTrainParams, profile: DeviceProfile, points: list[list]):
+        self.params = params
+        self.profile = profile
+        self.points = points
+        self._offsets = [pt[1] for pt in points]       # as coded, before any is ended early
+        self._unfitted: Schedule | None = None
+
+    def unfitted(self) -> Schedule:
+        """What would be played without fitting to the limits (for the live loop, whose
+        guard holds the limits itself: :class:`~vtexp.errors.UnsafeStimulus`)."""
+        if self._unfitted is None:
+            pulses = [Pulse(row=r, col=c, onset_ms=q.onset_ms, duration_ms=q.duration_ms,
+                            train=q.what)
+                      for (r, c), reqs in _requests(self.points, self._offsets).items()
+                      for q in _resolve_pin(reqs)]
+            pulses.sort(key=lambda q: (q.onset_ms, q.row, q.col))
+            self._unfitted = Schedule(device=self.profile.name, pulses=pulses,
+                                      coding="pulse-trains", params=self.params.model_dump())
+        return self._unfitted
+
+    def refuse(self, text: str) -> UnsafeStimulus:
+        return UnsafeStimulus(f"pulse-trains on {self.profile.name}: {text}",
+                              schedule=self.unfitted())
+
+    def _used(self, pattern: Pattern) -> list[str]:
+        """'' for the plain trains and/or 'corner_' for Table 4's, as the pattern uses them."""
+        corners = self.params.corner_emphasis and any(p.corner for p in pattern.points)
+        plain = not self.params.corner_emphasis or any(not p.corner for p in pattern.points)
+        return [k for k, used in (("", plain), ("corner_", corners)) if used]
+
+    def check_settings(self, pattern: Pattern) -> None:
+        """Frequency and pulse width of the trains the pattern uses, within the profile's
+        limits of one pulse (amplitudes: :func:`_check_profile`)."""
+        lim = self.profile.limits
+        name = self.profile.name
+        for k in self._used(pattern):
+            f = getattr(self.params, f"{k}frequency_hz")
+            w = getattr(self.params, f"{k}pulse_width_ms")
+            if lim.max_frequency_hz is not None and f > lim.max_frequency_hz:
+                raise self.refuse(f"frequency {f:g} Hz exceeds max_frequency_hz "
+                                  f"{lim.max_frequency_hz:g} Hz of {name}: set {k}frequency_hz "
+                                  f"to at most {lim.max_frequency_hz:g}")
+            if lim.max_pulse_width_ms is not None and w > lim.max_pulse_width_ms:
+                raise self.refuse(f"pulse width {w:g} ms exceeds max_pulse_width_ms "
+                                  f"{lim.max_pulse_width_ms:g} ms of {name}: set "
+                                  f"{k}pulse_width_ms to at most {lim.max_pulse_width_ms:g}")
+            if w >= 1000.0 / f:
+                raise self.refuse(f"pulse width {w:g} ms does not fit in the period of "
+                                  f"{f:g} Hz (always on): set {k}pulse_width_ms below "
+                                  f"{1000.0 / f:g}, or {k}frequency_hz below {1000.0 / w:g}")
+
+    def keep_to_budget(self) -> None:
+        """At most ``max_simultaneous`` pins on at once: where a point's onset would bring
+        more, the oldest point still vibrating that holds a pin no other point holds then
+        stops at that onset (its pins together, so that a phantom point does not move; if
+        none holds a pin of its own, the oldest), until they fit."""
+        budget = self.profile.limits.max_simultaneous
+        pts = self.points
+        active: list[int] = []
+        for k, (on, _, asks) in enumerate(pts):
+            if not asks:
+                continue
+            active = [j for j in active if pts[j][1] > on]
+            active.append(k)
+            while True:
+                holders = Counter(pin for j in active for pin, _, _ in pts[j][2])
+                if len(holders) <= budget:
+                    break
+                older = [j for j in active if pts[j][0] < on]
+                oldest = next((j for j in older
+                               if any(holders[pin] == 1 for pin, _, _ in pts[j][2])),
+                              older[0] if older else None)
+                if oldest is None:
+                    raise self.refuse(
+                        f"{len(holders)} pins would be on at once at {on:.1f} ms (points "
+                        f"beginning together there), above max_simultaneous {budget} of "
+                        f"{self.profile.name}: encode it without phantom points "
+                        f"(subdivisions 1), or set soa_ms to at least 1")
+                pts[oldest][1] = on
+                active.remove(oldest)
+
+    def refusal_to_split(self, e: Unsplittable) -> UnsafeStimulus:
+        """The refusal of a pin that no rest can split (:func:`split_refusal`), naming what
+        is too long or too short for it. A pin fails to split only where a request on it
+        outlasts ``max_on_ms`` less the rest (a vibration that long), or is shorter than
+        the rest (a vibration, or an SOA at which the budget ends a point, that short)."""
+        lim = self.profile.limits
+        p = self.params
+        kinds = [k for k in ("", "corner_") if k == "" or p.corner_emphasis]
+        if e.kind == "max_on" and not e.crowded:
+            most = longest_splittable_ms(lim)
+            keys = [f"{k}vibration_ms" for k in kinds if getattr(p, f"{k}vibration_ms") > most]
+            fix = f"{' and '.join(keys) or 'vibration_ms'} to at most {whole_ms_below(most)}"
+        else:
+            need = pause_ms(lim)
+            keys = [f"{k}vibration_ms" for k in kinds
+                    if getattr(p, f"{k}vibration_ms") <= need]
+            shortest = min(getattr(p, f"{k}vibration_ms") for k in kinds)
+            soa = p.soa_ms if p.soa_ms is not None else tactile_brush_soa_ms(shortest)
+            if soa <= need:
+                keys.insert(0, "soa_ms")
+            fix = f"{' and '.join(keys) or 'soa_ms'} to at least {at_least_ms(need)}"
+        return self.refuse(f"{split_refusal(e, lim)}: set {fix}")
 
 
 def _tick(t_ms: float) -> float:

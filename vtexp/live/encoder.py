@@ -43,7 +43,7 @@ from ..coding import CODINGS
 from ..coding.pulses import tactile_brush_soa_ms
 from ..encoding import PIPELINES
 from ..encoding.snake import SnakeTracker
-from ..errors import InputError
+from ..errors import InputError, UnsafeStimulus
 from ..model import DeviceProfile, Pattern, Schedule
 from .program import FOLLOWS, Program
 
@@ -127,10 +127,16 @@ class LiveSetup:
         fn, _ = CODINGS[self.coding]
         probe = Pattern(rows=self.profile.rows, cols=self.profile.cols, pipeline=self.pipeline,
                         points=[{"row": 0, "col": 0, "line": 1, "order": 0}])
+        refused = []
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            fn(probe, self.profile, **self.coding_params)
-        self.warnings = sorted({str(w.message) for w in caught})
+            try:
+                fn(probe, self.profile, **self.coding_params)
+            except UnsafeStimulus as e:         # live, the guard leaves that out (code_frame)
+                if e.schedule is None:
+                    raise
+                refused.append(f"{e}; live, what breaks a limit is left out")
+        self.warnings = sorted({str(w.message) for w in caught} | set(refused))
 
 
 @dataclass
@@ -184,11 +190,25 @@ class LiveEncoder:
             t1 = time.perf_counter()
             if not pattern.points:
                 return Encoded(pattern, None, (t1 - t0) * 1000.0, 0.0, figure)
-            schedule = self._code(pattern, s.profile, **s.coding_params)
+            schedule = code_frame(self._code, pattern, s.profile, s.coding_params)
         t2 = time.perf_counter()
         program = Program.build(schedule, pattern, cycle_ms(s.coding, pattern, schedule),
                                 frame=frame, t_capture=t_capture, hold=s.play == "hold")
         return Encoded(pattern, program, (t1 - t0) * 1000.0, (t2 - t1) * 1000.0, figure)
+
+
+def code_frame(code, pattern: Pattern, profile: DeviceProfile,
+               params: dict[str, Any]) -> Schedule:
+    """A live frame's Schedule: the coding's, fitted to the profile's limits; where the
+    coding refuses what it cannot fit, the schedule as coded, which the live loop's
+    :class:`~vtexp.safety.StreamGuard` holds to the limits as it plays (leaving out what
+    breaks one, and saying so) rather than stopping the stream."""
+    try:
+        return code(pattern, profile, **params)
+    except UnsafeStimulus as e:
+        if e.schedule is None:
+            raise
+        return e.schedule
 
 
 def cycle_ms(coding: str, pattern: Pattern, schedule: Schedule) -> float:
