@@ -236,11 +236,19 @@ def test_unplugging_takes_the_port_away(emu):
 
 def test_device_clock_is_its_own():
     fast = PtyEmulator.for_profile(VEST, clock_ppm=50_000)   # 5 % fast, to see it quickly
-    t0h, t0d = time.perf_counter(), fast.clock_us()
-    time.sleep(0.05)
-    dt_h = (time.perf_counter() - t0h) * 1e6
-    dt_d = fast.clock_us() - t0d
-    assert dt_d == pytest.approx(dt_h * 1.05, rel=0.02)
+    # Each device reading bracketed by host readings: a busy computer may pause this
+    # thread between them, which only widens the bracket, never moves the truth out of it.
+    # A bracket wider than 1 ms (of the 2.5 ms the 5 % makes) tells too little: read again.
+    for _ in range(20):
+        a0, t0d, b0 = time.perf_counter(), fast.clock_us(), time.perf_counter()
+        time.sleep(0.05)
+        a1, t1d, b1 = time.perf_counter(), fast.clock_us(), time.perf_counter()
+        shortest, longest = (a1 - b0) * 1e6, (b1 - a0) * 1e6
+        if longest - shortest < 1_000:
+            break
+    else:
+        pytest.skip("the computer paused this test in every one of 20 readings")
+    assert shortest * 1.05 - 2 <= t1d - t0d <= longest * 1.05 + 2    # (1 us resolution)
 
 
 def test_a_frame_after_the_watchdog_deadline_is_too_late():
