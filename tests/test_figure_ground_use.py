@@ -186,3 +186,15 @@ def test_live_command_with_a_photograph_of_the_stage(tmp_path):
     found = frames["centroid_row"].notna().to_numpy()
     # the empty half second before the object plays nothing; with it, the object plays
     assert not found[:10].any() and found[-20:].mean() > 0.8, found.astype(int)
+
+
+def test_live_with_a_photograph_of_another_size_is_one_message(tmp_path):
+    from vtexp.live.synthetic import write_video
+
+    video = tmp_path / "v.avi"
+    write_video(video, "rectangle", seconds=0.5, width=160, height=120)
+    cv2().imwrite(str(tmp_path / "stage.png"), np.zeros((240, 320), np.uint8))
+    r = run_cli("live", str(video), "--pipeline", "edge-trace", "--no-pace", "--background",
+                str(tmp_path / "stage.png"), timeout=120)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "320x240 pixels, the frames 160x120" in r.stderr

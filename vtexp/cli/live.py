@@ -67,7 +67,26 @@ def _background(args, source):
         return BackgroundModel.from_reference(reference)
     from ..stimuli import read_image
 
-    return BackgroundModel.from_reference(read_image(how))
+    return _StageFromFile(how, read_image(how))
+
+
+class _StageFromFile:
+    """``--background FILE``: the photograph of the empty stage, which must be of the
+    camera's frames' size (a model learned from it would otherwise learn again from the
+    first frame, the object and all)."""
+
+    def __init__(self, path: str, image):
+        from ..encoding.figure import BackgroundModel
+
+        self.path, self.shape = path, image.shape[:2]
+        self.model = BackgroundModel.from_reference(image)
+
+    def update(self, frame):
+        if frame.shape[:2] != self.shape:
+            raise InputError(f"the empty stage is {self.shape[1]}x{self.shape[0]} pixels, the "
+                             f"frames {frame.shape[1]}x{frame.shape[0]}: photograph it with "
+                             "the same camera (or use --background capture)", path=self.path)
+        return self.model.update(frame)
 
 
 #: Frames ``--background auto`` learns the empty stage from (a second at 30 fps).
