@@ -198,3 +198,35 @@ def test_live_with_a_photograph_of_another_size_is_one_message(tmp_path):
                 str(tmp_path / "stage.png"), timeout=120)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert "320x240 pixels, the frames 160x120" in r.stderr
+
+
+def test_e_at_the_objects_prompt_captures_the_empty_stage_again(tmp_path):
+    """The experimenter types 'e' at an object's prompt: the stage is captured again (the
+    frames read for the prompt stop meanwhile), then the object is asked for again."""
+    from types import SimpleNamespace
+
+    from vtexp.live.sources import VideoSource
+    from vtexp.live.synthetic import write_video
+    from vtexp.live.trial import capture
+
+    video = tmp_path / "v.avi"
+    write_video(video, "rectangle", seconds=1.0, width=160, height=120)
+    lx = SimpleNamespace(experiment=SimpleNamespace(stimuli={
+        "card": SimpleNamespace(delay_s=None, object="the card")}))
+    trial = SimpleNamespace(stimulus="card", number=3)
+    said, recaptured = iter(["e", "E ", ""]), []
+    asked = []
+
+    def prompt(text):
+        asked.append(text)
+        return next(said)
+
+    src = VideoSource(video)
+    try:
+        got = capture(lx, trial, tmp_path, prompt, src, "camera 0",
+                      recapture=lambda: recaptured.append(1))
+    finally:
+        src.close()
+    assert len(recaptured) == 2 and len(asked) == 3
+    assert "'e' and Enter: capture the empty stage again" in asked[0]
+    assert got.stim_file == "stim/trial-003.png" and (tmp_path / got.stim_file).is_file()

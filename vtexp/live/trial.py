@@ -84,45 +84,52 @@ def capture(lx, trial, session_dir: Path, prompt: CapturePrompt | None,
             recapture: Callable[[], None] | None = None) -> Captured:
     """Steps 1-2 of the module docstring: the frame, saved. ``source`` stays open.
     ``recapture``: what to call when the experimenter asks to capture the empty stage
-    again at the object's prompt."""
+    again at the object's prompt (it reads the source itself, so the frames read for the
+    prompt stop meanwhile)."""
     spec = lx.experiment.stimuli[trial.stimulus]
-    box = LatestFrame()
-    cap = Capture(source, box)
+    if spec.delay_s is None and prompt is None:
+        raise SessionError(f"trial {trial.number}: stimulus {trial.stimulus!r} asks the "
+                           "experimenter to place the object, but nobody is at a "
+                           "terminal; declare delay_s, or run from a terminal")
     source.open()
-    cap.start()
-    try:
-        if spec.delay_s is not None:
-            time.sleep(spec.delay_s)
-        else:
-            if prompt is None:
-                raise SessionError(f"trial {trial.number}: stimulus {trial.stimulus!r} asks the "
-                                   "experimenter to place the object, but nobody is at a "
-                                   "terminal; declare delay_s, or run from a terminal")
-            while True:
+    while True:
+        box = LatestFrame()
+        cap = Capture(source, box)        # reading while the experimenter places it: the
+        cap.start()                       # newest frame is there when Enter is pressed
+        try:
+            if spec.delay_s is not None:
+                time.sleep(spec.delay_s)
+            else:
                 said = prompt(f"Trial {trial.number}: place {spec.object or trial.stimulus} "
                               f"in front of {camera_name}, then press Enter"
                               + (f" ('{RECAPTURE}' and Enter: capture the empty stage again "
                                  "first) " if recapture is not None else " "))
-                if recapture is None or (said or "").strip().lower() != RECAPTURE:
-                    break
-                recapture()
-        deadline = time.monotonic() + stall_s
-        frame = None
-        while frame is None:
-            try:
-                frame = box.take()
-            except SourceEnded:
-                raise InputError(f"{source.label} ended before a frame could be taken for "
-                                 f"trial {trial.number}", key=f"stimuli.{trial.stimulus}") from None
-            if frame is None:
-                if time.monotonic() > deadline:
-                    raise InputError(f"{source.label} gave no frame for {stall_s:g} s (trial "
-                                     f"{trial.number})", key=f"stimuli.{trial.stimulus}")
-                box.wait(0.05)
-    finally:
-        cap.stop(close=False)
+                if recapture is not None and (said or "").strip().lower() == RECAPTURE:
+                    cap.stop(close=False)
+                    recapture()
+                    continue
+            frame = _newest(box, source, trial, stall_s)
+        finally:
+            cap.stop(close=False)
+        break
     path = save_frame(session_dir / "stim", f"trial-{trial.number:03d}", frame.image)
     return Captured(frame.image, str(path.relative_to(session_dir)), frame.t_capture)
+
+
+def _newest(box: LatestFrame, source: FrameSource, trial, stall_s: float):
+    deadline = time.monotonic() + stall_s
+    while True:
+        try:
+            frame = box.take()
+        except SourceEnded:
+            raise InputError(f"{source.label} ended before a frame could be taken for "
+                             f"trial {trial.number}", key=f"stimuli.{trial.stimulus}") from None
+        if frame is not None:
+            return frame
+        if time.monotonic() > deadline:
+            raise InputError(f"{source.label} gave no frame for {stall_s:g} s (trial "
+                             f"{trial.number})", key=f"stimuli.{trial.stimulus}")
+        box.wait(0.05)
 
 
 def capture_empty_stage(source: FrameSource, prompt: CapturePrompt | None, *,
