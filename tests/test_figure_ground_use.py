@@ -123,6 +123,10 @@ def test_a_camera_frame_is_told_from_the_empty_stage(photos):
     assert with_stage.points
     with pytest.raises(InputError, match="no object was found"):
         coded(lx, condition, gstage, profile, gstage)
+    # the card pushed half out of the frame: said, nothing played
+    _, cut, _ = stage_and_scene(shift=0.45)
+    with pytest.raises(InputError, match="runs off the edge of the frame"):
+        coded(lx, condition, cv2().cvtColor(cut, cv2().COLOR_BGR2GRAY), profile, gstage)
 
 
 def test_capturing_the_empty_stage_needs_someone_to_clear_it(tmp_path):

@@ -162,6 +162,10 @@ def _report(args, coding, profile, image, figure, pattern, schedule) -> None:
     if figure is not None:
         print(f"  object: {figure.method} figure-ground, {int(figure.mask.sum())} pixels, "
               f"confidence {figure.confidence:.2f}")
+        from ..live.trial import touches_edge
+        if touches_edge(figure.mask):
+            print(f"vtexp: warning: {args.image}: the object runs off the edge of the picture; "
+                  "only the part in view is encoded", file=sys.stderr)
     if schedule is not None:
         print(f"  {coding}: {len(schedule.pulses)} pulses over {schedule.duration_ms:.0f} ms, "
               f"within {profile.name}'s safety limits")

@@ -170,6 +170,12 @@ def capture_empty_stage(source: FrameSource, prompt: CapturePrompt | None, *,
     return np.clip(np.rint(np.mean(got, axis=0)), 0, 255).astype(np.uint8)
 
 
+def touches_edge(mask: np.ndarray) -> bool:
+    """Whether the object (uint8 0/1) reaches the frame's edge: the camera saw only part
+    of it."""
+    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+
+
 def save_frame(folder: Path, stem: str, image) -> Path:
     """``image`` as ``folder/stem.png`` (``stem-2.png``, ... if taken), created exclusively."""
     path = _new_file(folder, stem)
@@ -196,6 +202,11 @@ def coded(lx, condition: Condition, image, profile: DeviceProfile, empty_stage=N
         if figure.empty:
             raise InputError(f"no object was found in the frame taken for stimulus "
                              f"{condition.stimulus!r}: {figure.reason}",
+                             key=f"stimuli.{condition.stimulus}")
+        if touches_edge(figure.mask):
+            raise InputError(f"the object of stimulus {condition.stimulus!r} runs off the "
+                             "edge of the frame, so only part of its shape would be felt: "
+                             "move it (or the camera) so that all of it is in view",
                              key=f"stimuli.{condition.stimulus}")
         mask = figure.mask
     pattern = encode(lx, image, profile, condition.encoding_params, mask=mask)
