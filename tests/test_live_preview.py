@@ -76,6 +76,30 @@ def test_the_preview_shows_camera_contour_array_and_figures(display, videos, pip
     assert px.shape[1] >= 1000               # three panels side by side
 
 
+def test_the_preview_outlines_the_object_over_a_photograph(display, tmp_path):
+    """A card moving over a photograph (matplotlib's sample, dimmed), the empty stage given:
+    the object found is outlined in magenta over the camera image."""
+    import matplotlib
+
+    from vtexp._cv2 import cv2
+    from vtexp.stimuli import read_image
+
+    photo = read_image(Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg")
+    stage = (cv2().resize(photo, (640, 480)) * 0.6).astype(np.uint8)
+    cv2().imwrite(str(tmp_path / "stage.png"), stage)
+    video = tmp_path / "card.avi"
+    write_video(video, "rectangle", seconds=3.0, size=0.45, backdrop=stage)
+    shot = SHOTS / "preview-edge-trace-over-a-photograph.png"
+    r = live(display, str(video), "--pipeline", "edge-trace", "--background",
+             str(tmp_path / "stage.png"), "--preview", "--duration", "2", "--screenshot",
+             str(shot))
+    assert r.returncode == 0, r.stderr
+    from PIL import Image
+    px = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    magenta = (px[..., 0] > 200) & (px[..., 1] < 80) & (px[..., 2] > 200)
+    assert magenta.sum() > 200, magenta.sum()
+
+
 def test_escape_in_the_preview_ends_the_run_with_everything_off(display, videos):
     """A real key press (XTEST) into the preview window, as the experimenter's keyboard."""
     pytest.importorskip("Xlib", reason="python-xlib (installed with PsychoPy on Linux)")
