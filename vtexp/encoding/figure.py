@@ -203,10 +203,13 @@ def change_score(image: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return _light_residual(image, reference)[0]
 
 
-def _light_residual(image: np.ndarray, reference: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """(score, planes): :func:`change_score` and the fitted light, (H, W, C)."""
-    ratio = np.log(image + LOG_FLOOR) - np.log(reference + LOG_FLOOR)
+def _light_residual(image: np.ndarray, reference: np.ndarray,
+                    log_reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(score, planes): :func:`change_score` and the fitted light, (H, W, C).
+    ``log_reference``: ``log(reference + LOG_FLOOR)`` if already known."""
+    if log_reference is None:
+        log_reference = np.log(reference + LOG_FLOOR)
+    ratio = np.log(image + LOG_FLOOR) - log_reference
     planes = _fit_planes(ratio)
     r = ratio - planes
     return np.sqrt(_channel_mean(r * r)), planes
@@ -266,7 +269,8 @@ def enlarge(figure: Figure, shape: tuple[int, ...]) -> Figure:
                   figure.reason)
 
 
-def shadow_like(image: np.ndarray, reference: np.ndarray, planes: np.ndarray) -> np.ndarray:
+def shadow_like(image: np.ndarray, reference: np.ndarray, planes: np.ndarray,
+                log_reference: np.ndarray | None = None) -> np.ndarray:
     """Where ``image`` looks like ``reference`` under a shadow (SHADOW_GAIN ...): a bool
     (H, W) mask. ``planes`` is the fitted light (:func:`_light_residual`), so the
     reference is compared as lit like the frame. Gray images: no colour test.
@@ -275,7 +279,9 @@ def shadow_like(image: np.ndarray, reference: np.ndarray, planes: np.ndarray) ->
     replaces it changes at least one of them, unless it is a darker patch of the
     ground's colour on a ground with no texture: that is taken for a shadow."""
     cv = cv2()
-    relit = np.exp(np.log(reference + LOG_FLOOR) + planes) - LOG_FLOOR
+    if log_reference is None:
+        log_reference = np.log(reference + LOG_FLOOR)
+    relit = np.exp(log_reference + planes) - LOG_FLOOR
     c = image.shape[2]
     a = cv.blur(image, (3, 3)).reshape(image.shape)
     b = cv.blur(relit, (3, 3)).reshape(image.shape)
@@ -689,6 +695,10 @@ class BackgroundModel:
     threshold made a flickering patch of the stage (a screen, +-30 %) figure,
     which the per-pixel threshold, like MOG2, learns to ignore.
 
+    Like :func:`figure_from_reference`, it works on frames reduced to ``work_px`` on
+    the longer side (:data:`WORK_PX`), and changed pixels that look like the
+    background in shadow (:func:`shadow_like`) are not figure.
+
     The camera moving (phase correlation against the background image), a change
     over most of the frame, and a figure too small or too faint give an empty
     Figure with the reason; :meth:`relearn` starts learning again (the stage must
@@ -704,19 +714,21 @@ class BackgroundModel:
     (False, True)
     """
 
-    def __init__(self, learn_frames: int = 30):
+    def __init__(self, learn_frames: int = 30, *, work_px: int = WORK_PX):
         if learn_frames < 1:
             raise InputError(f"learn_frames must be at least 1, got {learn_frames}")
         self.learn_frames = int(learn_frames)
+        self.work_px = int(work_px)
         self.relearn()
 
     @classmethod
-    def from_reference(cls, reference: np.ndarray) -> BackgroundModel:
+    def from_reference(cls, reference: np.ndarray, *, work_px: int = WORK_PX
+                       ) -> BackgroundModel:
         """A model learned from one captured empty frame (or a mean of several) instead
         of the first frames. MOG2 starts each pixel at its initial variance (15, a
         standard deviation of 3.9 grey levels); feeding one frame again and again would
         shrink it to the floor (4) and make a quarter of an empty stage figure."""
-        model = cls(learn_frames=1)
+        model = cls(learn_frames=1, work_px=work_px)
         model.update(reference)
         return model
 
@@ -726,6 +738,7 @@ class BackgroundModel:
         self._seen = 0
         self._shape: tuple[int, ...] | None = None
         self._background: np.ndarray | None = None
+        self._log_background: np.ndarray | None = None
         self._sums: list[np.ndarray] = []       # of log-brightness and its square, learning
         self._steady: np.ndarray | None = None  # the ratio test's per-pixel threshold
 
@@ -736,27 +749,30 @@ class BackgroundModel:
     def update(self, frame: np.ndarray) -> Figure:
         """The figure in ``frame`` (gray or BGR, as the frames learned); while learning,
         an empty Figure whose reason says so."""
-        img = as_image(frame, "frame")
+        full = as_image(frame, "frame")
         reason = None
-        if self._shape is not None and img.shape != self._shape:
+        if self._shape is not None and full.shape != self._shape:
             self.relearn()
-            reason = (f"the frame changed size or colour mode ({img.shape[1]}x{img.shape[0]}"
-                      f"x{img.shape[2]}); learning the background again")
-        self._shape = img.shape
+            reason = (f"the frame changed size or colour mode ({full.shape[1]}x"
+                      f"{full.shape[0]}x{full.shape[2]}); learning the background again")
+        self._shape = full.shape
+        img = reduce(full, self.work_px)
         if self._background is None:
             self._learn(img)
-            return Figure.nothing(img.shape, reason or (
+            return Figure.nothing(full.shape, reason or (
                 f"learning the background ({self._seen} of {self.learn_frames} frames; "
                 "the stage must be empty)"), "model")
         redo = "clear the stage and learn it again (relearn)"
-        moved = _moved(img, self._background, redo)
+        moved = _moved(img, self._background, redo, full.shape[1] / img.shape[1])
         if moved:
-            return Figure.nothing(img.shape, moved, "model")
-        score, planes = _light_residual(img, self._background)
+            return Figure.nothing(full.shape, moved, "model")
+        bg, log_bg = self._background, self._log_background
+        score, planes = _light_residual(img, bg, log_bg)
         relit = np.exp(np.log(img + LOG_FLOOR) - planes) - LOG_FLOOR
         fg = self._mog.apply(_to_u8(relit), learningRate=0) == 255
         fg |= score > np.maximum(change_threshold(score), self._steady)
-        return figure_from_score(score, "model", raw=fg, redo=redo)
+        fg &= ~shadow_like(img, bg, planes, log_bg)
+        return enlarge(figure_from_score(score, "model", raw=fg, redo=redo), full.shape)
 
     def _learn(self, img: np.ndarray) -> None:
         self._mog.apply(_to_u8(img), learningRate=-1)
@@ -769,6 +785,7 @@ class BackgroundModel:
         self._seen += 1
         if self._seen >= self.learn_frames:
             self._background = as_image(self._mog.getBackgroundImage(), "background")
+            self._log_background = np.log(self._background + LOG_FLOOR)
             mean, mean2 = (x / self._seen for x in self._sums)
             var = np.maximum(mean2 - mean * mean, 0.0).mean(axis=2)
             self._steady = (STEADY_SIGMAS * np.sqrt(var)).astype(np.float32)
