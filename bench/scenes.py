@@ -26,7 +26,9 @@ same light, exposure changed by up to +-3 %, its own sensor noise, its own JPEG.
 
 Conditions: plain or real ground, each with no figure-ground (``none``: the pipelines as
 they are, the baseline) or with the figure of ``vtexp.encoding.figure`` passed to the
-pipeline as ``mask=``: ``reference`` (``figure_from_reference(frame, reference)``) and
+pipeline as ``mask=``: ``truth`` (the exact mask itself: the ceiling, which separates what a
+pipeline loses after the mask from what the figure-ground method loses; on an empty scene an
+all-zero mask, refused), ``reference`` (``figure_from_reference(frame, reference)``) and
 ``still`` (``figure_from_still(frame)``). A Figure that is ``.empty`` plays nothing and is
 counted as refused. If that module is missing, those columns are skipped and this is said.
 
@@ -81,8 +83,8 @@ IoU / baseline IoU and fps / baseline fps. Prints a table per pipeline and write
 ``bench/results/scenes.json`` with every case's seed and numbers. Needs the ``bench``
 extra (scikit-image; scikit-learn adds two grounds).
 
-Usage: python bench/scenes.py [--cases N] [--quick] [--seed SEED]  (default 72 cases;
-``--quick``: 12, under a minute)
+Usage: python bench/scenes.py [--cases N] [--quick] [--seed SEED] [--figures none,truth,...]
+(default 72 cases and every method; ``--quick``: 12, under a minute)
 """
 
 from __future__ import annotations
@@ -477,11 +479,13 @@ class FitRecorder:
 
 
 try:
-    from vtexp.encoding.figure import figure_from_reference, figure_from_still
+    from vtexp.encoding.figure import Figure, figure_from_reference, figure_from_still
 except ImportError:                       # the figure-ground module is not in this tree yet
-    figure_from_reference = figure_from_still = None
+    Figure = figure_from_reference = figure_from_still = None
 
-METHODS = ("none", "reference", "still")
+#: ``truth`` passes the exact mask: the ceiling of a pipeline with a figure, which tells
+#: what the pipeline loses after the mask from what the figure-ground method loses
+METHODS = ("none", "truth", "reference", "still")
 
 
 def available_methods() -> tuple[str, ...]:
@@ -509,10 +513,11 @@ class Played:
 
 
 def play_frame(study: Study, frame: np.ndarray, method: str, reference: np.ndarray,
-               recorder: FitRecorder) -> Played:
+               recorder: FitRecorder, truth: np.ndarray | None = None) -> Played:
     """``frame`` (BGR) encoded, coded and checked as the study does it, after the figure of
-    ``method`` (``none``: the pipeline alone). Timed from the colour frame to the checked
-    Schedule, on this thread."""
+    ``method`` (``none``: the pipeline alone; ``truth``: ``truth``, the exact mask, as a
+    Figure of confidence 1, all-zero on an empty scene). Timed from the colour frame to the
+    checked Schedule, on this thread."""
     cv = cv2()
     p = study.profile
     recorder.seen.pop(study.spec.pipeline, None)
@@ -520,8 +525,13 @@ def play_frame(study: Study, frame: np.ndarray, method: str, reference: np.ndarr
     kw = dict(study.encoding_params)
     figure = None
     if method != "none":
-        figure = (figure_from_reference(frame, reference) if method == "reference"
-                  else figure_from_still(frame))
+        if method == "truth":
+            t = np.zeros(frame.shape[:2], np.uint8) if truth is None else truth
+            figure = Figure(np.asarray(t, np.uint8), 1.0, "truth")
+        elif method == "reference":
+            figure = figure_from_reference(frame, reference)
+        else:
+            figure = figure_from_still(frame)
         if figure.empty:
             return Played("refused", (time.perf_counter() - t0) * 1e3, figure=figure)
         kw["mask"] = np.asarray(figure.mask, np.uint8)
@@ -861,7 +871,8 @@ def measure(study: Study, case: Case, ground: str, method: str, recorder: FitRec
             namer: Namer | None) -> dict:
     """One scene with the object through one study: the record of the module docstring."""
     frame = case.frames[ground, "object"]
-    played = play_frame(study, frame, method, case.frames[ground, "reference"], recorder)
+    played = play_frame(study, frame, method, case.frames[ground, "reference"], recorder,
+                        case.truth)
     rec = {"pipeline": study.spec.pipeline, "case": case.index, "seed": case.seed,
            "object": case.kind, "ground": ground, "figure": method, "outcome": played.outcome,
            "ms": round(played.ms, 3), "driven": played.driven}
@@ -921,8 +932,9 @@ def measure_case(study: Study, case: Case, methods: list[str], recorder: FitReco
     return records, empties
 
 
-def run(cases: int, seed: int = SEED) -> dict:
-    """Every case through every study, plain and real, by every figure-ground method."""
+def run(cases: int, seed: int = SEED, figures: tuple[str, ...] | None = None) -> dict:
+    """Every case through every study, plain and real, by every figure-ground method (or
+    those of ``figures``; ``none``, the baseline, always)."""
     cv = cv2()
     threads = cv.getNumThreads()
     cv.setNumThreads(1)
@@ -932,7 +944,8 @@ def run(cases: int, seed: int = SEED) -> dict:
                          "extra, pip install -e '.[bench]'")
     studies = [prepare(s) for s in STUDIES]
     methods = {st.spec.pipeline: [m for m in available_methods()
-                                  if m == "none" or mask_refusal(st) is None]
+                                  if m == "none" or (mask_refusal(st) is None and (
+                                      figures is None or m in figures))]
                for st in studies}
     records, empties, described = [], [], []
     try:
@@ -1085,12 +1098,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cases", type=int, default=72, help="composites per condition")
     ap.add_argument("--quick", action="store_true", help="12 cases (under a minute)")
     ap.add_argument("--seed", type=int, default=SEED, help="case i is drawn from SEED + i")
+    ap.add_argument("--figures", default=",".join(METHODS),
+                    help="figure-ground methods measured beside 'none' (comma-separated; "
+                         f"default {','.join(METHODS)})")
     args = ap.parse_args(argv)
+    figures = tuple(f.strip() for f in args.figures.split(",") if f.strip())
+    unknown = sorted(set(figures) - set(METHODS))
+    if unknown:
+        ap.error(f"unknown figure method(s) {', '.join(unknown)}; known: {', '.join(METHODS)}")
     cases = 12 if args.quick else args.cases
     if figure_from_reference is None:
         print("vtexp.encoding.figure not found: the 'reference' and 'still' columns are "
               "skipped (only today's pipelines, 'none', are measured)")
-    result = run(cases, args.seed)
+    result = run(cases, args.seed, figures)
     for pipeline, why in result["mask_refused"].items():
         if why:
             print(f"{pipeline} does not take mask= ({why}): its figure columns are skipped")

@@ -374,7 +374,8 @@ def test_with_the_mask_the_spiral_path_follows_the_line():
     assert farthest(cells(want), cells(blind)) > 0.5
 
 
-@pytest.mark.parametrize("surface, region", [("ball", FLAG), ("vase", FLAG), ("ball", SKY)])
+@pytest.mark.parametrize("surface, region", [("ball", FLAG), ("vase", FLAG), ("ball", SKY),
+                                             ("vase", SKY), ("uneven", SKY)])
 def test_with_the_mask_height_contours_stay_on_the_object(surface, region):
     fn, _ = PIPELINES["height-contours"]
     plain = render_surface(surface=surface, size=0.6, center_x=0.4, noise_sd=2)

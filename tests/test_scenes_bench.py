@@ -124,3 +124,17 @@ def test_a_measured_case_and_its_summary(scenes, grounds, edge_trace):
     rows = scenes.summarise(recs)
     assert {r["ground"] for r in rows} == {"plain", "real"}
     assert all(r["fps_ratio"] == 1.0 and r["cases"] == 1 for r in rows)
+
+
+def test_the_truth_method_passes_the_exact_mask_and_refuses_an_empty_scene(scenes, grounds,
+                                                                           edge_trace):
+    if scenes.Figure is None:
+        pytest.skip("vtexp.encoding.figure is not in this tree")
+    case = scenes.make_case(0, grounds)
+    with scenes.FitRecorder() as recorder, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = scenes.measure(edge_trace, case, "real", "truth", recorder, None)
+        empty = scenes.measure_empty(edge_trace, case, "real", "truth", recorder)
+    assert rec["outcome"] == "played" and rec["figure_iou"] == 1.0
+    assert rec["figure_method"] == "truth" and rec["iou_line"] > 0.9
+    assert empty["outcome"] == "refused" and empty["driven"] == 0
