@@ -20,6 +20,23 @@ def pytest_addoption(parser):
                           "few of every run (bench/fuzz.py prints the same as a table)")
 
 
+#: The files that take longest (wall time in `make test`, measured with a per-test
+#: timer), first: pytest-xdist hands whole files (`--dist loadfile`) to its processes in
+#: the order collected, and a long file handed out last keeps the run waiting for it
+#: alone. Alphabetical order put the participant window's 40 s near the end.
+LONGEST_FIRST = ("test_analysis_report.py", "test_cli.py", "test_accessible_window.py",
+                 "test_session.py", "test_resume_safety.py", "test_live.py", "test_window.py",
+                 "test_adaptive.py", "test_observer.py", "test_live_preview.py",
+                 "test_firmware_pins.py", "test_camera_trials.py", "test_coding_limits.py",
+                 "test_live_firmware.py", "test_report_defects.py", "test_portable.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: k for k, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))   # stable: files keep
+                                                                       # their own order
+
+
 ROOT = Path(__file__).resolve().parents[1]
 GRID = ROOT / "experiments" / "duration_interval_grid.yaml"
 
