@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -151,10 +152,26 @@ FS_CALLS = ("open", "write", "pwrite", "fsync", "ftruncate", "mkdir", "rename", 
             "unlink", "rmdir")
 
 
+#: A forked child that has not ended by then is taken as hung: this process had threads
+#: when it forked (pytest-xdist's own, or those a test before left), and a lock one of
+#: them held stays held in the child. A session's start takes well under a second.
+CHILD_S = 30.0
+
+
 def _run_killed_at(lx, data, k: int) -> int:
     """Run the session in a forked child that SIGKILLs itself just before its k-th file
     system call (k=0: never); return how many calls it made before its first trial was
-    logged (k=0) or -1."""
+    logged (k=0) or -1. A child that hangs (see CHILD_S) is killed there, which is a
+    kill like any other for k >= 1; the count (k=0) is taken again."""
+    for _ in range(3):
+        got = _fork_killed_at(lx, data, k)
+        if got is not None or k != 0:
+            return -1 if got is None else got
+        shutil.rmtree(data, ignore_errors=True)
+    raise AssertionError("the forked session hung three times")
+
+
+def _fork_killed_at(lx, data, k: int) -> int | None:
     r, w = os.pipe()
     pid = os.fork()
     if pid == 0:                                    # the child: count, and die at k
@@ -186,7 +203,14 @@ def _run_killed_at(lx, data, k: int) -> int:
         finally:
             os._exit(0)
     os.close(w)
-    _, status = os.waitpid(pid, 0)
+    deadline = time.monotonic() + CHILD_S
+    while os.waitpid(pid, os.WNOHANG) == (0, 0):
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            os.close(r)
+            return None
+        time.sleep(0.02)
     got = b""
     while chunk := os.read(r, 100):
         got += chunk
