@@ -222,7 +222,7 @@ class LiveTrial:
     until :meth:`stop` (the participant answered)."""
 
     def __init__(self, lx, condition: Condition, device, source: FrameSource,
-                 record_dir: Path):
+                 record_dir: Path, empty_stage=None):
         from .encoder import LiveEncoder, LiveSetup
         from .loop import LiveRun
         from .record import Recorder
@@ -240,7 +240,12 @@ class LiveTrial:
             "coding_params": setup.coding_params,
             "play": setup.play, "follow": setup.follow,
             "profile": setup.profile.model_dump(mode="json")}, t0=device.clock.now())
-        self.run = LiveRun(source, LiveEncoder(setup), device, sinks=[self.recorder],
+        background = None
+        if empty_stage is not None:            # the object is what differs from it
+            from ..encoding.figure import BackgroundModel
+            background = BackgroundModel.from_reference(empty_stage)
+        self.run = LiveRun(source, LiveEncoder(setup, background), device,
+                           sinks=[self.recorder],
                            stall_s=5.0)
         self.error: BaseException | None = None
         self._thread = threading.Thread(target=self._work, daemon=True,

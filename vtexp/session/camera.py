@@ -61,7 +61,8 @@ class CameraTrials:
                                  recapture=recapture)
             if self.lx.experiment.stimuli[trial.stimulus].live:
                 folder = self.dir / (got.stim_file[:-len(".png")] + "-live")
-                live = camera.LiveTrial(self.lx, trial.condition, device, source, folder)
+                live = camera.LiveTrial(self.lx, trial.condition, device, source, folder,
+                                        self.empty.get(name))
                 source = None                       # the live run reads it from here on
                 return None, got.stim_file, live
             _, schedule = camera.coded(self.lx, trial.condition, got.image, device.profile,
