@@ -133,11 +133,13 @@ def _newest(box: LatestFrame, source: FrameSource, trial, stall_s: float):
 
 
 def capture_empty_stage(source: FrameSource, prompt: CapturePrompt | None, *,
-                        frames: int = EMPTY_FRAMES, stall_s: float = 5.0) -> np.ndarray:
+                        frames: int = EMPTY_FRAMES, stall_s: float = 5.0,
+                        key: str = "--background") -> np.ndarray:
     """The empty stage, for telling each trial's object from it
     (:func:`vtexp.encoding.figure.figure_from_reference`): the experimenter is asked to
     clear the stage and press Enter, then the mean of the next ``frames`` frames of
-    ``source`` (open) is taken."""
+    ``source`` (open) is taken. ``key``: what an error names (the option, or the
+    stimulus)."""
     if prompt is None:
         raise InputError("capturing the empty stage asks the experimenter to clear it, but "
                          "no one is at a terminal; give a photograph of the empty stage "
@@ -166,7 +168,7 @@ def capture_empty_stage(source: FrameSource, prompt: CapturePrompt | None, *,
         cap.stop(close=False)
     if not got:
         raise InputError(f"{source.label} gave no frame of the empty stage for {stall_s:g} s",
-                         key="--background")
+                         key=key)
     return np.clip(np.rint(np.mean(got, axis=0)), 0, 255).astype(np.uint8)
 
 

@@ -53,7 +53,7 @@ class CameraTrials:
         try:
             recapture = None
             if spec.delay_s is None and spec.camera is not None:
-                recapture = partial(self._empty_stage, source, name)
+                recapture = partial(self._empty_stage, source, name, trial.stimulus)
                 if name not in self.empty:
                     source.open()
                     recapture()
@@ -72,9 +72,9 @@ class CameraTrials:
             if source is not None:
                 source.close()
 
-    def _empty_stage(self, source, name: str) -> None:
+    def _empty_stage(self, source, name: str, stimulus: str) -> None:
         from ..live import trial as camera
 
-        stage = camera.capture_empty_stage(source, self.prompt)
+        stage = camera.capture_empty_stage(source, self.prompt, key=f"stimuli.{stimulus}")
         camera.save_frame(self.dir / "stim", "empty-stage", stage)
         self.empty[name] = stage
