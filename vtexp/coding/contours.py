@@ -45,10 +45,10 @@ from ..model import (
 from .limits import (
     Unsplittable,
     at_least_ms,
+    fit_schedule,
     longest_splittable_ms,
     most_on_at_once,
     pause_ms,
-    split_pulses,
     split_refusal,
     where,
     whole_ms_below,
@@ -220,14 +220,9 @@ def _fit(schedule: Schedule, profile: DeviceProfile, p: ContourModeParams, patte
                      f"{', '.join(map(str, levels))} from the lowest line up): {fix}")
 
     try:
-        pulses = split_pulses(schedule.pulses, lim)
+        fitted_schedule, most, when = fit_schedule(schedule, lim)
     except Unsplittable as e:
         raise refuse(f"{split_refusal(e, lim)}: set {_split_fix(p, lim, e)}") from None
-    fitted_schedule = schedule if pulses is schedule.pulses else \
-        schedule.model_copy(update={"pulses": pulses})
-
-    most, when = most_on_at_once(((q.row, q.col), q.onset_ms, q.offset_ms)
-                                 for q in fitted_schedule.pulses)
     if most > lim.max_simultaneous:
         raise refuse(_budget_refusal(p, pattern, lim, name, lines, cells, timing, most, when))
     return fitted_schedule

@@ -43,7 +43,7 @@ from collections.abc import Hashable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from ..model import Pulse, SafetyLimits
+from ..model import Pulse, SafetyLimits, Schedule
 
 #: As ``vtexp.safety``: two pulses of one actuator closer than this are one activation.
 CONTIGUOUS_MS = 1e-6
@@ -202,6 +202,25 @@ def split_pulses(pulses: list[Pulse], limits: SafetyLimits) -> list[Pulse]:
         out.extend(q.model_copy(update={"onset_ms": s.onset_ms, "duration_ms": s.duration_ms})
                    for s in sorted(pieces[i], key=lambda s: s.onset_ms))
     return out
+
+
+def fit_schedule(schedule: Schedule, limits: SafetyLimits
+                 ) -> tuple[Schedule, int, float | None]:
+    """``schedule`` with the pauses its actuators need (:func:`split_pulses`; the same
+    object if none is), and the most of its actuators on at one moment and when
+    (:func:`most_on_at_once`), for the coding to hold against ``max_simultaneous``.
+
+    Raises
+    ------
+    Unsplittable
+        As :func:`split_pulses`.
+    """
+    pulses = split_pulses(schedule.pulses, limits)
+    fitted = schedule if pulses is schedule.pulses else \
+        schedule.model_copy(update={"pulses": pulses})
+    most, when = most_on_at_once(((q.row, q.col), q.onset_ms, q.offset_ms)
+                                 for q in fitted.pulses)
+    return fitted, most, when
 
 
 def _clip(spans: list[Span], lo: float, hi: float) -> list[Span]:

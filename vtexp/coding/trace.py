@@ -11,8 +11,7 @@ from ..model import DeviceProfile, LevelDrive, Model, Ms, Pattern, Pulse, Schedu
 from .limits import (
     Unsplittable,
     at_least_ms,
-    most_on_at_once,
-    split_pulses,
+    fit_schedule,
     split_refusal,
     where,
 )
@@ -94,7 +93,7 @@ def _fit(schedule: Schedule, profile: DeviceProfile) -> Schedule:
                          f"max_level {lim.max_level} of {profile.name}: set {key} to at most "
                          f"{lim.max_level}")
     try:
-        pulses = split_pulses(schedule.pulses, lim)
+        fitted_schedule, most, when = fit_schedule(schedule, lim)
     except Unsplittable as e:
         # A tactor's pulses chain only where it comes back before its pulse has ended (and
         # rested): at soa_ms >= duration_ms + min_off_ms (and some) none ever does.
@@ -105,10 +104,6 @@ def _fit(schedule: Schedule, profile: DeviceProfile) -> Schedule:
             fixes.append(f"soa_ms to at least "
                          f"{at_least_ms(min(d, lim.max_on_ms) + lim.min_off_ms)}")
         raise refuse(f"{split_refusal(e, lim)}: set {', and '.join(fixes)}") from None
-    fitted_schedule = schedule if pulses is schedule.pulses else \
-        schedule.model_copy(update={"pulses": pulses})
-    most, when = most_on_at_once(((q.row, q.col), q.onset_ms, q.offset_ms)
-                                 for q in fitted_schedule.pulses)
     if most > lim.max_simultaneous:
         b = lim.max_simultaneous
         raise refuse(f"{most} tactors would be on at once at {when:.1f} ms, above "
