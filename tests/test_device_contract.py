@@ -13,6 +13,7 @@ it sent.
 
 from __future__ import annotations
 
+import gc
 import signal
 import tempfile
 import threading
@@ -198,17 +199,24 @@ def test_interrupt_during_a_play_turns_everything_off(backend):
     long = Schedule(device="vest_6x8", pulses=[
         Pulse(row=r, col=0, onset_ms=0, duration_ms=1500, level=2) for r in range(4)])
     dev = backend.open(VEST, realtime=True)
-    # Ctrl-C as the terminal sends it: a real SIGINT, to the main thread.
+    # Ctrl-C as the terminal sends it: a real SIGINT, to the main thread. Without the
+    # garbage collector's callbacks of this test process (Hypothesis times collections
+    # with one): a KeyboardInterrupt raised inside a callback is printed and dropped
+    # ("Exception ignored in gc callback"), and the play was never interrupted.
     main = threading.main_thread().ident
     timer = threading.Timer(0.2, signal.pthread_kill, (main, signal.SIGINT))
-    with dev:
-        t = time.monotonic()
-        timer.start()
-        with pytest.raises(KeyboardInterrupt):
-            dev.play(long)
-        assert time.monotonic() - t < 1.0
-        assert backend.all_off(dev)
-    timer.cancel()
+    callbacks, gc.callbacks[:] = gc.callbacks[:], []
+    try:
+        with dev:
+            t = time.monotonic()
+            timer.start()
+            with pytest.raises(KeyboardInterrupt):
+                dev.play(long)
+            assert time.monotonic() - t < 1.0
+            assert backend.all_off(dev)
+    finally:
+        gc.callbacks[:] = callbacks
+        timer.cancel()
 
 
 def test_close_turns_off_and_the_device_opens_again(backend):
