@@ -133,6 +133,47 @@ def worker_number() -> int:
     return int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:] or 0)
 
 
+#: The participant window's frame rate on the virtual display. Xvfb's flip returns at once,
+#: so the window draws at its own cap (vtexp.responders.window.MAX_FRAME_RATE, 240 a
+#: second, for drivers with vsync off), and every window test would keep a core busy
+#: drawing frames that do not change. The tests see the window as a 60 Hz lab monitor
+#: shows it.
+TEST_DISPLAY_HZ = 60.0
+
+
+def _as_a_lab_display() -> None:
+    """The participant window on the test display: refreshed at TEST_DISPLAY_HZ, and each
+    PsychoPy window icon converted once (pyglet turns an icon into X11's pixel format
+    pixel by pixel, with a regular expression: 0.2 s of CPU per icon, two icons for every
+    window opened, about 70 windows a run)."""
+    import vtexp.responders.window as window
+    window.MAX_FRAME_RATE = TEST_DISPLAY_HZ
+    import psychopy.visual  # noqa: F401  (sets pyglet's options before pyglet.window loads)
+    from ctypes import c_ulong, sizeof
+    from pyglet.image import ImageData
+    from pyglet.window.xlib import XlibWindow
+    if getattr(XlibWindow.set_icon, "converted_once", False):
+        return
+    fmt = {("little", 4): "BGRA", ("little", 8): "BGRAAAAA", ("big", 4): "ARGB",
+           ("big", 8): "AAAAARGB"}[(sys.byteorder, sizeof(c_ulong))]     # as pyglet's
+    set_icon, done = XlibWindow.set_icon, {}
+
+    def converted_once(self, *images):
+        ready = []
+        for image in images:
+            data = image.get_image_data()
+            raw = data.get_data(data.format, data.pitch)
+            key = (data.width, data.height, data.format, data.pitch, bytes(raw))
+            pitch = -(data.width * len(fmt))
+            if key not in done:
+                done[key] = data.get_data(fmt, pitch)
+            ready.append(ImageData(data.width, data.height, fmt, done[key], pitch))
+        return set_icon(self, *ready)
+
+    converted_once.converted_once = True
+    XlibWindow.set_icon = converted_once
+
+
 @pytest.fixture(scope="session")
 def xvfb():
     """A virtual X server on a free display number, for the whole test session (one for
@@ -141,6 +182,7 @@ def xvfb():
     with start_xvfb(90 + 40 * worker_number(), "1920x1200x24") as disp:
         old = os.environ.get("DISPLAY")
         os.environ["DISPLAY"] = disp
+        _as_a_lab_display()
         yield disp
         if "psychopy.visual" in sys.modules:      # a failed test may leave its window open
             from psychopy.visual.window import openWindows

@@ -217,3 +217,20 @@ def test_a_site_override_keeps_the_other_sites():
     assert p.two_point_threshold_mm["palm"] == 12.0
     assert p.two_point_threshold_mm["lower_back"] == load_params().two_point_threshold_mm[
         "lower_back"]
+
+
+def test_the_integration_filter_is_the_recursion_of_p2_exactly():
+    """(P2), u[n] = a u[n-1] + (1 - a) x[n], as a filter: equal to the recursion written
+    out, bit for bit, on pulses of every kind of edge."""
+    from vtexp.observer.percept import leaky
+    rng = np.random.default_rng(3)
+    x = rng.random((3, 7, 400))
+    x[x < 0.6] = 0.0
+    dt, tau = 12.5, 40.0
+    a = math.exp(-dt / tau)
+    expected = np.empty_like(x)
+    acc = np.zeros(x.shape[:-1])
+    for n in range(x.shape[-1]):
+        acc = a * acc + (1.0 - a) * x[..., n]
+        expected[..., n] = acc
+    assert np.array_equal(leaky(x, dt, tau), expected)

@@ -550,3 +550,16 @@ def test_resume_refuses_a_coding_file_changed_since_the_session_began(tmp_path, 
         with open_device("sim", DeviceProfile.load("vest_6x8")) as dev:
             run_session(changed, dev, make_responder("scripted:correct", "01", 1),
                         SessionOptions(participant="01", data_dir=tmp_path / "m", resume=True))
+
+
+def test_a_logged_value_is_written_as_its_plain_text():
+    """The log's cells: numbers as Python writes them (a NumPy number too, rounded to a
+    microsecond's digits), missing as n/a, booleans as 1/0, a tab or line end inside a
+    text as a space."""
+    import numpy as np
+    from vtexp.log import NA, format_value
+    cases = [(None, NA), (True, "1"), (False, "0"), (3, "3"), (np.int64(-4), "-4"),
+             (0.1 + 0.2, "0.3"), (float("nan"), NA), (np.nan, NA), (np.float64(2.123456789),
+             "2.123457"), (np.float32(0.5), "0.5"), (float("inf"), "inf"), ("plain", "plain"),
+             ("a\tb\nc\rd", "a b c d"), ((1, 2), "(1, 2)")]
+    assert [format_value(v) for v, _ in cases] == [want for _, want in cases]

@@ -385,3 +385,18 @@ def test_several_questions_are_checked(tmp_path, minimal_yaml):
     wrong = bad.replace('correct: "{shape}"', 'correct: "{shap}"')
     e = error_of(tmp_path, wrong)
     assert e.key == "questions.0.correct"
+
+
+def test_a_file_read_twice_gives_each_reader_its_own_data(tmp_path, minimal_yaml):
+    """A command reads its experiment more than once; what one reader changes in the data
+    is not what the next one reads, and an edited file is read anew."""
+    from vtexp.yamlio import load_yaml
+    p = write_experiment(tmp_path, minimal_yaml)
+    first = load_yaml(p)
+    first.data["stimuli"]["square"]["params"]["shape"] = "changed"
+    first.lines.clear()
+    again = load_yaml(p)
+    assert again.data["stimuli"]["square"]["params"]["shape"] == "square"
+    assert again.line_of(("stimuli", "square")) == 5
+    p.write_text(minimal_yaml.replace("title: A minimal", "title: An edited"), encoding="utf-8")
+    assert load_yaml(p).data["title"] == "An edited experiment"

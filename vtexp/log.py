@@ -44,6 +44,13 @@ def fsync_dir(path: Path) -> None:
 
 
 def format_value(v: Any) -> str:
+    t = type(v)                 # the common cases first: a trial writes hundreds of values
+    if t is float:
+        return NA if v != v else repr(round(v, 6))
+    if t is int:
+        return str(v)
+    if t is str and "\t" not in v and "\n" not in v and "\r" not in v:
+        return v
     if v is None:
         return NA
     if isinstance(v, bool):
@@ -51,7 +58,7 @@ def format_value(v: Any) -> str:
     if isinstance(v, float):
         if math.isnan(v):
             return NA
-        return repr(round(v, 6))
+        return repr(float(round(v, 6)))     # a numpy float as a Python float
     s = str(v)
     # A tab or newline inside a value would shift columns or split the row.
     return s.replace("\t", " ").replace("\r", " ").replace("\n", " ")

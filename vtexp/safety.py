@@ -83,10 +83,16 @@ def check_schedule(schedule: Schedule, profile: DeviceProfile) -> None:
         raise UnsafeStimulus(f"schedule was coded for device {schedule.device!r}, "
                              f"not for {name!r}; encode it again for this device")
     by_actuator: dict[tuple[int, int], list[Pulse]] = defaultdict(list)
+    checked: set[tuple] = set()             # a setting repeats on many pulses: judged once
     for p in schedule.pulses:
-        problem = setting_problem(p.row, p.col, p.level, p.train, profile)
-        if problem:
-            raise UnsafeStimulus(f"{_where(p)}: {problem}")
+        tr = p.train
+        setting = (p.row, p.col, p.level,
+                   None if tr is None else (tr.amplitude_v, tr.frequency_hz, tr.pulse_width_ms))
+        if setting not in checked:
+            problem = setting_problem(p.row, p.col, p.level, tr, profile)
+            if problem:
+                raise UnsafeStimulus(f"{_where(p)}: {problem}")
+            checked.add(setting)
         by_actuator[(p.row, p.col)].append(p)
 
     for pulses in by_actuator.values():

@@ -8,6 +8,7 @@ returns a map from each key path (a tuple of keys and list indices) to its
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -105,7 +106,25 @@ def _check_extent(node: yaml.Node, path: str) -> None:
             stack.extend((x, depth + 1) for x in nd.value)
 
 
+#: Documents already read by this process, by path and text: a command reads its experiment
+#: several times (checked, compiled, recorded), and a test run reads the same few files
+#: hundreds of times. Each caller gets its own copy of the data.
+_READ: dict[tuple[str, str], tuple[Any, dict[KeyPath, int]]] = {}
+_READ_MAX = 64
+
+
 def load_yaml_text(text: str, path: str = "<string>") -> LoadedYaml:
+    done = _READ.get((path, text))
+    if done is None:
+        done = _read(text, path)
+        if len(_READ) >= _READ_MAX:
+            _READ.pop(next(iter(_READ)))
+        _READ[(path, text)] = done
+    data, lines = done
+    return LoadedYaml(data=copy.deepcopy(data), path=path, text=text, lines=dict(lines))
+
+
+def _read(text: str, path: str) -> tuple[Any, dict[KeyPath, int]]:
     if len(text) > MAX_BYTES:
         raise InputError(f"is over {MAX_BYTES:,} characters long; an experiment file is a few "
                          "kilobytes", path=path)
@@ -143,7 +162,7 @@ def load_yaml_text(text: str, path: str = "<string>") -> LoadedYaml:
             loader.dispose()
     lines: dict[KeyPath, int] = {}
     _record_lines(node, (), lines)
-    return LoadedYaml(data=data, path=path, text=text, lines=lines)
+    return data, lines
 
 
 def load_yaml(path: str | Path) -> LoadedYaml:

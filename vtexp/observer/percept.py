@@ -124,14 +124,14 @@ def activity(reports: list[PlayReport], profile: DeviceProfile, skin: Skin,
 
 
 def leaky(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
-    """(P2) on a grid of step ``dt`` along the last axis: u[n] = a u[n-1] + (1 - a) x[n]."""
+    """(P2) on a grid of step ``dt`` along the last axis: u[n] = a u[n-1] + (1 - a) x[n].
+
+    A first-order recursive filter (scipy's ``lfilter``): the same products and sums,
+    step by step, as the recursion written out, in C.
+    """
+    from scipy.signal import lfilter        # a second to import: only where it is used
     alpha = np.exp(-dt / tau)
-    u = np.empty_like(x)
-    acc = np.zeros(x.shape[:-1])
-    for n in range(x.shape[-1]):
-        acc = alpha * acc + (1.0 - alpha) * x[..., n]
-        u[..., n] = acc
-    return u
+    return lfilter([1.0 - alpha], [1.0, -alpha], x, axis=-1)
 
 
 _FACTORS: dict[tuple, np.ndarray] = {}
