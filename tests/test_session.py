@@ -14,7 +14,9 @@ import time
 import pandas as pd
 import pytest
 
+import session_child
 from conftest import GRID, ROOT, write_experiment, session_record
+from forked import Child
 from vtexp.analysis import read_session
 from vtexp.devices import open_device
 from vtexp.errors import InputError, SessionError
@@ -152,11 +154,10 @@ def test_unwritable_data_folder_is_a_clear_error(tmp_path, grid_lx):
         run(grid_lx, data)
 
 
-def _child(tmp_path, participant, delay):
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.Popen([sys.executable, str(ROOT / "tests" / "session_child.py"),
-                             str(GRID), str(tmp_path), participant, str(delay)],
-                            stdout=subprocess.PIPE, text=True, env=env)
+def _child(data, participant, delay, *more):
+    """The session of ``participant`` in a process of its own (tests/session_child.py),
+    each answer ``delay`` seconds late."""
+    return Child(session_child.main, str(GRID), str(data), participant, str(delay), *more)
 
 
 def _complete_rows(path):
@@ -171,14 +172,13 @@ def _complete_rows(path):
 def test_sigkill_between_trials_keeps_every_completed_row(tmp_path, kill_after):
     proc = _child(tmp_path, "K", 0.01)
     seen = 0
-    for line in proc.stdout:
+    for line in proc:
         if line.startswith("logged"):
             seen = int(line.split()[1])
             if seen >= kill_after:
-                proc.send_signal(signal.SIGKILL)
+                proc.kill()
                 break
-    proc.wait(timeout=30)
-    assert proc.returncode == -signal.SIGKILL
+    assert proc.wait() == -signal.SIGKILL
     paths = SessionPaths.of(tmp_path, "duration_interval_grid", "durationIntervalGrid", "K", 1)
     complete, partial = _complete_rows(paths.beh_tsv)
     header = complete[0].split("\t")
@@ -198,12 +198,12 @@ def test_sigkill_at_random_moments_never_corrupts_the_log(tmp_path):
     for i in range(6):
         proc = _child(tmp_path, f"R{i}", 0.005)
         # Wait for the first trial, then kill at a random moment.
-        for line in proc.stdout:
+        for line in proc:
             if line.startswith("logged"):
                 break
         time.sleep(rng.uniform(0.0, 0.25))
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=30)
+        proc.kill()
+        proc.wait()
         paths = SessionPaths.of(tmp_path, "duration_interval_grid", "durationIntervalGrid",
                                 f"R{i}", 1)
         complete, partial = _complete_rows(paths.beh_tsv)
@@ -355,7 +355,7 @@ def _comparable(paths):
 def test_killed_at_random_moments_and_resumed_equals_an_uninterrupted_run(tmp_path):
     # The reference: the same participant's session run straight through.
     ref = _child(tmp_path / "ref", "K9", 0.0)
-    assert ref.wait(timeout=120) == 0
+    assert ref.wait() == 0
     ref_paths = SessionPaths.of(tmp_path / "ref", "duration_interval_grid",
                                 "durationIntervalGrid", "K9", 1)
     # The same session killed with SIGKILL at random moments, resumed each time.
@@ -363,22 +363,19 @@ def test_killed_at_random_moments_and_resumed_equals_an_uninterrupted_run(tmp_pa
     data = tmp_path / "killed"
     paths = SessionPaths.of(data, "duration_interval_grid", "durationIntervalGrid", "K9", 1)
     kills = 0
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
     for _ in range(60):
-        args = [sys.executable, str(ROOT / "tests" / "session_child.py"), str(GRID), str(data),
-                "K9", "0.004"] + (["resume"] if paths.session_json.exists() else [])
-        proc = subprocess.Popen(args, stdout=subprocess.PIPE, text=True, env=env)
+        proc = _child(data, "K9", 0.004, *(["resume"] if paths.session_json.exists() else []))
         out = ""
-        for line in proc.stdout:                    # wait until this run has made progress
-            out += line
+        for line in proc:                           # wait until this run has made progress
+            out += line + "\n"
             if line.startswith("logged") or line.startswith("done"):
                 break
         time.sleep(rng.uniform(0.0, 0.15))          # then kill at a random moment
         if proc.poll() is None:
-            proc.send_signal(signal.SIGKILL)
+            proc.kill()
             kills += 1
-        out += proc.communicate(timeout=60)[0]
-        # A kill can land after the session was marked completed but before "done" printed.
+        out += proc.rest()
+        # A kill can land after the session was marked completed but before "done" said.
         if "done" in out or (paths.session_json.exists() and json.loads(
                 paths.session_json.read_text()).get("status") == "completed"):
             break

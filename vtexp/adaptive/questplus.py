@@ -51,9 +51,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import xlogy
 
 from .psychometric import psi
+
+
+def xlogy(x, y):
+    """x log y, 0 where x is 0 (scipy.special's, imported when a QUEST+ track first
+    chooses: every session imports this module, and scipy.special takes a sixth of a
+    second to import)."""
+    from scipy.special import xlogy as f
+    return f(x, y)
 
 
 def _h(q: np.ndarray) -> np.ndarray:

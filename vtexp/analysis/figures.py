@@ -153,9 +153,11 @@ def confusion_heatmaps(confusion: pd.DataFrame, by: list[str]) -> bytes:
             for b in range(m.shape[1]):
                 v = m.iat[a, b]
                 if v == v and (k <= 12 or v >= 0.005):
+                    # inside its cell: no part of the layout (laying out a letter
+                    # matrix's 676 numbers took most of its second)
                     ax.text(b, a, f"{v * 100:.0f}", ha="center", va="center",
                             fontsize=fontsize - (1 if k > 12 else 0),
-                            color="white" if v > 0.6 else "black")
+                            color="white" if v > 0.6 else "black", in_layout=False)
         key = key if isinstance(key, tuple) else (key,)
         title = ", ".join(f"{f} {v}" for f, v in zip(by, key)) or "all trials"
         ax.set_title("\n".join(textwrap.wrap(title, width=max(12, int(side * 9)))),
