@@ -144,6 +144,71 @@ def test_shape_touching_the_border_and_huge_images():
     assert pat.closed == [0]
 
 
+def _render_shape_testing_every_sample(**params) -> np.ndarray:
+    """render_shape as it was first written: all 4 x 4 samples of every pixel in the
+    shape's box tested, the shares averaged, then the gray levels worked out per pixel."""
+    from vtexp.stimuli.shapes import SUPERSAMPLE, ShapeParams, _shape_polygon
+    p = ShapeParams(**params)
+    ss = SUPERSAMPLE
+    poly = _shape_polygon(p)
+    if poly is None:
+        r = p.size * p.height / 2
+        cx, cy = p.center_x * p.width, p.center_y * p.height
+        box = (cx - r, cy - r, cx + r, cy + r)
+    else:
+        box = (poly[:, 0].min(), poly[:, 1].min(), poly[:, 0].max(), poly[:, 1].max())
+    x0 = int(np.clip(np.floor(box[0]), 0, p.width))
+    y0 = int(np.clip(np.floor(box[1]), 0, p.height))
+    x1 = int(np.clip(np.ceil(box[2]) + 1, 0, p.width))
+    y1 = int(np.clip(np.ceil(box[3]) + 1, 0, p.height))
+    share = np.zeros((p.height, p.width), np.float32)
+    if x1 > x0 and y1 > y0:
+        x = ((np.arange(x0 * ss, x1 * ss) + 0.5) / ss)[None, :]
+        y = ((np.arange(y0 * ss, y1 * ss) + 0.5) / ss)[:, None]
+        if poly is None:
+            inside = (x - cx) ** 2 + (y - cy) ** 2 <= r * r
+        else:
+            inside = np.ones((y.shape[0], x.shape[1]), bool)
+            for (ax, ay), (bx, by) in zip(poly, np.roll(poly, -1, axis=0), strict=True):
+                inside &= (bx - ax) * (y - ay) - (by - ay) * (x - ax) >= 0
+        share[y0:y1, x0:x1] = inside.reshape(y1 - y0, ss, x1 - x0, ss).mean(axis=(1, 3))
+    img = p.background + (p.foreground - p.background) * share
+    if p.noise_sd > 0:
+        img = img + np.random.default_rng(p.seed).normal(0, p.noise_sd, img.shape)
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("small_box_px", ["as set", 0])
+def test_render_shape_gives_what_testing_every_sample_gives(monkeypatch, small_box_px):
+    # render_shape tests sample by sample only the pixels on the outline; the image must
+    # be the one testing all samples gives, byte for byte. Centres on 1/8 pixel and sizes
+    # on 1/4 pixel put edges and the circle through samples, where >= and <= decide.
+    # With SMALL_BOX_PX = 0 even a few pixels' box goes through the tiles.
+    from vtexp.stimuli import shapes
+    if small_box_px != "as set":
+        monkeypatch.setattr(shapes, "SMALL_BOX_PX", small_box_px)
+    rng = np.random.default_rng(20)
+    for i in range(300):
+        w, h = [(16, 16), (23, 17), (64, 48), (101, 77), (160, 120)][i % 5]
+        on_grid = i // 4 % 2 == 0
+        kw = dict(shape=SHAPES[i % 4], width=w, height=h,
+                  size=(int(rng.integers(1, 4 * h + 1)) / (4 * h) if on_grid
+                        else float(rng.uniform(0.001, 1))),
+                  center_x=(int(rng.integers(0, 8 * w + 1)) / (8 * w) if on_grid
+                            else float(rng.random())),
+                  center_y=(int(rng.integers(0, 8 * h + 1)) / (8 * h) if on_grid
+                            else float(rng.random())),
+                  rotation_deg=float(rng.choice([0, 45, 90, 180, rng.uniform(-360, 360)])),
+                  background=int(rng.integers(0, 256)), foreground=int(rng.integers(0, 256)),
+                  noise_sd=float(rng.choice([0, 0, 0, 5.0])), seed=i)
+        assert np.array_equal(render_shape(**kw), _render_shape_testing_every_sample(**kw)), kw
+    for shape in SHAPES:    # the defaults, and a frame of a synthetic video
+        assert np.array_equal(render_shape(shape=shape),
+                              _render_shape_testing_every_sample(shape=shape))
+        kw = dict(shape=shape, width=640, height=480, size=0.35, rotation_deg=33.0)
+        assert np.array_equal(render_shape(**kw), _render_shape_testing_every_sample(**kw))
+
+
 def test_paper_edge_modes_trace_the_study_shapes():
     # 'outline' (Sobel-Otsu-thinning, filled) closes the upright study shapes; the direct
     # 'edges' route is documented as fragile on 6x8 (docs/decisions.md): it still visits
