@@ -68,9 +68,13 @@ demo: $(VENV)/.core
 # the environment says not to (PYTHONDONTWRITEBYTECODE): the suite starts Python about
 # a hundred times, and each would compile vtexp again. The study on the AVR firmware in
 # simavr runs alone afterwards: under the load of the other tests the firmware's open
-# timing defect (see docs/firmware.md, Known limits) shows in some runs.
+# timing defect (see docs/firmware.md, Known limits) shows in some runs. Four processes
+# already share the two cores, so NumPy's BLAS computes on one thread in each: its own
+# threads would only wait for each other (OpenBLAS spins while it waits: the GLMM tests
+# take 9.9 s of CPU with two threads, 5.9 s with one, in the same wall time).
 test: system-packages $(VENV)/.test
-	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -n 4 --dist loadfile \
+	env -u PYTHONDONTWRITEBYTECODE OPENBLAS_NUM_THREADS=1 \
+	  $(BIN)/python -m pytest -n 4 --dist loadfile \
 	  --ignore=tests/test_firmware_study.py
 	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest tests/test_firmware_study.py
 
