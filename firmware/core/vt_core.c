@@ -80,7 +80,7 @@ _Static_assert(sizeof(struct vt_state) + VT_PORT_RAM_BYTES + VT_STACK_RESERVE <=
                "VT_MAX_PULSES or VT_MAX_PAYLOAD (docs/firmware.md, \"RAM and flash\")");
 #endif
 
-static const vt_setting OFF = {0, 0, 0};
+static const vt_setting OFF = {0, 0, 0, 0};
 
 /* ------------------------------------------------------------------ little-endian */
 
@@ -218,7 +218,7 @@ static uint8_t setting_size(uint8_t drive) { return drive == VT_DRIVE_LEVEL ? 1 
 
 static vt_setting read_setting(uint8_t drive, const uint8_t *p)
 {
-    vt_setting s = {0, 0, 0};
+    vt_setting s = {0, 0, 0, 0};
     if (drive == VT_DRIVE_LEVEL) {
         s.a = p[0];
     } else {
@@ -251,7 +251,7 @@ static vt_setting p_setting(uint16_t j)
 {
     const uint8_t *p = pulse_at(j) + 10;
 #if VT_SETTING_BYTES == 1
-    vt_setting s = {p[0], 0, 0};
+    vt_setting s = {p[0], 0, 0, 0};
     return s;
 #else
     return read_setting(S.cfg->drive, p);
@@ -398,6 +398,7 @@ static void stage_instant(uint32_t T, uint16_t *n_on)
         }
         if (best >= 0) {
             vt_setting s = p_setting((uint16_t)best);
+            s.d = p_end((uint16_t)best) - T;
             vt_hal_stage(a, &s);
         }
     }
@@ -405,6 +406,7 @@ static void stage_instant(uint32_t T, uint16_t *n_on)
         uint16_t j = S.next_on++;
         uint16_t a = p_index(j);
         vt_setting s = p_setting(j);
+        s.d = p_end(j) - T;
         S.act_cnt[a]++;
         vt_hal_stage(a, &s);
         heap_push((vt_pidx)j);

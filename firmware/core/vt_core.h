@@ -20,9 +20,13 @@
 
 /* One actuator's setting in wire units. Level drive: a = level, f = w = 0.
  * Pulse trains: a = amplitude in mV (0 = off), f = frequency in 0.01 Hz, w = pulse
- * width in us. */
+ * width in us. d: for how long it holds from the instant it is staged at, in us, as
+ * the schedule says (the rest of its pulse); 0 for a frame, which holds until changed.
+ * A train port starts no pulse at or after that end, even if the set that turns the
+ * actuator off comes late (docs/protocol.md, "What a pulse train is"). */
 typedef struct {
     uint16_t a, f, w;
+    uint32_t d;
 } vt_setting;
 
 /* What the device is and holds; reported in HELLO_REPLY. */

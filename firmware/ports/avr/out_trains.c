@@ -56,16 +56,19 @@ typedef struct {             /* a train's timing, as the tick uses it */
 typedef struct {
     uint32_t edge;           /* time of the next edge, us (wrapping; compared by difference) */
     uint32_t rise;           /* the current pulse's rise */
+    uint32_t until;          /* its schedule's end: no pulse rises at or after it */
     train_t t;
     uint16_t acc;            /* the period's remainder, accumulated */
     uint8_t on, high;
     uint8_t port, mask;      /* its gate: bit mask of byte port of the gate bytes */
     uint8_t fall_slot;       /* the fall ring's slot of the pulse it is in */
     uint8_t fresh;           /* its train started with a pulse of its own (not mid-pulse) */
+    uint8_t bounded;         /* 1: until holds; 2: reached (no more pulses); 0: a frame's */
 } pin_t;
 
 typedef struct {
     uint16_t a;              /* the amplitude, mV (0: off) */
+    uint32_t d;              /* how long it holds, us (0: until changed) */
     train_t t;               /* worked out when staged, out of the interrupt: it copies it */
 } staged_t;
 
@@ -254,6 +257,8 @@ static void start_train(pin_t *p, const staged_t *st, uint32_t t0)
     p->t = st->t;
     p->acc = 0;
     p->rise = t0;
+    p->until = t0 + st->d;
+    p->bounded = st->d != 0;
     p->fresh = !mid_pulse;
     if (!mid_pulse) {
         p->high = 0;
@@ -304,6 +309,12 @@ static inline __attribute__((always_inline)) void advance(uint32_t t, uint8_t kt
                 }
                 p->rise = r;
                 e = r;
+            } else if (p->bounded && (int32_t)(p->rise - p->until) >= 0) {
+                /* The train's end, as its schedule says: no pulse rises from here on,
+                 * though the set that turns the pin off may come later (a preparation
+                 * that ran late). It waits for that set with no edge due. */
+                p->bounded = 2;
+                continue;
             } else {
                 p->high = 1;
                 g_now[p->port] |= p->mask;
@@ -441,6 +452,7 @@ static void __attribute__((noinline)) prepare(void)
             if (!p->on)
                 continue;
             p->rise += late_us;
+            p->until += late_us;              /* its end keeps its duration */
             if (p->fresh && p->high) {
                 p->edge += late_us;
                 cli();
@@ -545,6 +557,7 @@ void vt_hal_stage(uint16_t index, const vt_setting *s)
         return;
     staged_t *st = &staged[index];
     st->a = s->a;
+    st->d = s->d;
     if (s->a) {                               /* 32-bit divisions: here, not in the tick */
         st->t.q = 100000000UL / s->f;
         st->t.r = (uint16_t)(100000000UL % s->f);

@@ -56,10 +56,10 @@
 #define VT_TICK_US 100              /* 10 kHz: pulse-train edges on a 100 us grid */
 #define VT_PREPARE_AT 0             /* the tick interrupt prepares the next tick itself */
 #define VT_DAC_CHIPS 4              /* LTC2656 octal DACs, daisy-chained */
-/* UART rings; per pin its train (28 B), staged setting (14 B), DAC codes (4 B) and two
+/* UART rings; per pin its train (33 B), staged setting (18 B), DAC codes (4 B) and two
  * list places (4 B); the DAC transfers planned for a commit (8 x 16 B); the fall ring
  * (32 ticks x 4 B); the port's variables */
-#define VT_PORT_RAM_BYTES (256 + 128 + 50 * VT_MAX_ACTUATORS + 128 + 128 + 64)
+#define VT_PORT_RAM_BYTES (256 + 128 + 59 * VT_MAX_ACTUATORS + 128 + 128 + 64)
 #endif
 
 #endif /* VT_RUNNER */
