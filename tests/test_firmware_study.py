@@ -40,9 +40,9 @@ EARLY_US = MAX_TICK_WAIT_CYCLES / 16
 # apart from the host, and stopped with Ctrl-C. `vtexp run` stays a child process too:
 # the pins depend on when the host's frames reach the chip (a tick late for a
 # preparation waits for the interrupt before it, docs/firmware.md), and in the test
-# process the host's timing differs. Either way the checks below can fail on the host's
-# timing alone: in the test process two runs in seven had a tick wait 114 cycles, past
-# the bound below; as a child, one in seven had a pulse the log does not explain.
+# process the host's timing differs: there two runs in seven had a tick wait 114 cycles,
+# past the bound below. As a child, one run in seven had a pulse the log does not explain
+# until trains knew their end (docs/firmware.md, Known limits).
 pytestmark = pytest.mark.process
 
 
