@@ -108,18 +108,21 @@ def _check_extent(node: yaml.Node, path: str) -> None:
 
 #: Documents already read by this process, by path and text: a command reads its experiment
 #: several times (checked, compiled, recorded), and a test run reads the same few files
-#: hundreds of times. Each caller gets its own copy of the data.
+#: hundreds of times. Each caller gets its own copy of the data. Only texts of an
+#: experiment's size are kept (at most _READ_MAX of them, of up to _READ_BYTES each).
 _READ: dict[tuple[str, str], tuple[Any, dict[KeyPath, int]]] = {}
 _READ_MAX = 64
+_READ_BYTES = 65_536
 
 
 def load_yaml_text(text: str, path: str = "<string>") -> LoadedYaml:
     done = _READ.get((path, text))
     if done is None:
         done = _read(text, path)
-        if len(_READ) >= _READ_MAX:
-            _READ.pop(next(iter(_READ)))
-        _READ[(path, text)] = done
+        if len(text) <= _READ_BYTES:
+            if len(_READ) >= _READ_MAX:
+                _READ.pop(next(iter(_READ)))
+            _READ[(path, text)] = done
     data, lines = done
     return LoadedYaml(data=copy.deepcopy(data), path=path, text=text, lines=dict(lines))
 
