@@ -630,8 +630,18 @@ def figure_from_still(image: np.ndarray) -> Figure:
     2. *GrabCut* seeded from it (:func:`grabcut_agreement`) grades it: their IoU.
 
     The confidence is the lesser of that agreement and the contrast: the figure's
-    median distance over the threshold, 0 at 1 and 1 from 2.5. Below MIN_CONFIDENCE
-    the Figure is empty, with the reason.
+    median distance over the threshold, 0 at 1 and 1 from 2.5. If it is at least
+    MIN_CONFIDENCE, this is the figure (plain grounds, vtexp's own stimuli).
+    3. Otherwise (a photograph: the object has the border's colours, or the
+       photograph's own things reach past its border colours) the figure is looked
+       for among candidate regions (:func:`object_candidates`: graph segmentation at
+       three scales), each scored for objectness (outline contrast to a ring around
+       it, colour difference, smooth inside against a textured surround, solidity,
+       compactness, size; a linear score fitted on bench scenes of seeds 5000-5047
+       only, :data:`OBJECT_WEIGHTS`); a candidate whose inside is textured or that
+       touches the border is none. The best is the figure if its score exceeds
+       OBJECT_SCORE (confidence MIN_CONFIDENCE there, rising with the score); else
+       the Figure is empty, with both reasons.
 
     Measured: border removal gave IoU 0.69-0.99 on three of the note's scenes and
     0.00 on the cluttered one (note §1.1); here 0.80-0.90 on brick, grass and
