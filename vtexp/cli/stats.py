@@ -285,6 +285,13 @@ def register(subparsers) -> None:
         description="Statistics on a tidy CSV/TSV table (one row per observation).")
     sub = st.add_subparsers(dest="stats_command", metavar="ANALYSIS", required=True)
     fmt = argparse.ArgumentDefaultsHelpFormatter
+    _register_anova(sub, fmt, PADJUST_METHODS)
+    _register_ranks_and_agreement(sub, fmt, PADJUST_METHODS)
+    _register_mixed_logit(sub, fmt)
+
+
+def _register_anova(sub, fmt, padjust_methods) -> None:
+    """rm-anova, simple-effects, posthoc and trend: the ANOVA family."""
     s = sub.add_parser("rm-anova", help="repeated-measures or mixed ANOVA (type 3, Mauchly, "
                        "GG/HF, η²p, η²G)", formatter_class=fmt)
     _common(s)
@@ -306,7 +313,7 @@ def register(subparsers) -> None:
     s.add_argument("--factor", required=True, metavar="COL", help="the factor compared")
     s.add_argument("--by", nargs="+", default=[], metavar="COL",
                    help="compare within each level of these factors")
-    s.add_argument("--padjust", choices=PADJUST_METHODS, default="holm")
+    s.add_argument("--padjust", choices=padjust_methods, default="holm")
     s.add_argument("--error", choices=["paired", "pooled"], default="paired",
                    help="paired: per-participant t tests; pooled: the ANOVA model's error "
                         "(emmeans)")
@@ -320,6 +327,10 @@ def register(subparsers) -> None:
                    help="the levels' values (default: the levels read as numbers)")
     s.add_argument("--error", choices=["paired", "pooled"], default="paired")
     s.set_defaults(func=cmd_trend)
+
+
+def _register_ranks_and_agreement(sub, fmt, padjust_methods) -> None:
+    """friedman and wilcoxon (rank tests), kappa and information-transfer (confusions)."""
     for name, fn, hlp in (("friedman", cmd_friedman, "Friedman's rank test with Kendall's W"),
                           ("wilcoxon", cmd_wilcoxon, "Wilcoxon signed-rank tests between "
                            "every two levels, corrected")):
@@ -330,7 +341,7 @@ def register(subparsers) -> None:
         s.add_argument("--subject", required=True, metavar="COL")
         s.add_argument("--missing", choices=["drop", "error"], default="drop")
         if name == "wilcoxon":
-            s.add_argument("--padjust", choices=PADJUST_METHODS, default="holm")
+            s.add_argument("--padjust", choices=padjust_methods, default="holm")
         s.add_argument("--json", action="store_true")
         s.set_defaults(func=fn)
     s = sub.add_parser("kappa", help="Cohen's kappa (weighted for ordered answers) between "
@@ -343,6 +354,9 @@ def register(subparsers) -> None:
                        "to response (bits)", formatter_class=fmt)
     _confusion_args(s)
     s.set_defaults(func=cmd_information_transfer)
+
+
+def _register_mixed_logit(sub, fmt) -> None:
     s = sub.add_parser("mixed-logit", help="mixed logistic model of a 0/1 outcome, maximum "
                        "likelihood as lme4::glmer", formatter_class=fmt)
     s.add_argument("file", metavar="FILE.csv", help="tidy table: one row per trial")
