@@ -39,18 +39,6 @@ def _headline(analysis) -> str:
 
 
 def cmd_demo(args) -> int:
-    import pandas as pd
-
-    from .. import bids
-    from ..analysis import load_sessions
-    from ..analysis.report import write_reports
-    from ..compile import compile_conditions
-    from ..devices.sim import SimDevice
-    from ..experiment import load_experiment
-    from ..observer import ModelObserver, ObserverModel
-    from ..resources import experiments_dir
-    from ..session import SessionOptions, run_session
-
     t0 = time.perf_counter()
     root = Path(args.data)
     if root.exists():
@@ -66,49 +54,13 @@ def cmd_demo(args) -> int:
         "two-point\nthreshold, limited to 7-8 intensity levels, integrated over ~40 ms; it "
         "answers by comparing\nthat percept with every answer option rendered the same way "
         "(protocols/observers/default.yaml).\n")
-    summary = []
-    for name, reps in DEMO_STUDIES:
-        src = experiments_dir() / f"{name}.yaml"
-        path = _short_version(src, root / "experiments" / f"{name}.yaml", reps)
-        lx = load_experiment(path)
-        exp = lx.experiment
-        model = ObserverModel.for_experiment(lx)
-        conds = compile_conditions(lx, model.profile)
-        n_trials = 0
-        for i in range(1, args.participants + 1):
-            pid = f"sim{i:02d}"
-            res = run_session(lx, SimDevice(model.profile),
-                              ModelObserver(model, pid, 1, seed=args.seed),
-                              SessionOptions(participant=pid, data_dir=root,
-                                             conditions=conds, command=sys.argv))
-            n_trials = len({r.trial for r in res.records})
-        out(f"  {exp.title}\n    {exp.reference}; {exp.device}; {len(conds)} conditions x "
-            f"{reps} repetition{'s' if reps > 1 else ''} = {n_trials} trials per participant: "
-            "logged")
-        summary.append((name, exp, n_trials))
-    # Each study's sessions are a BIDS dataset; its report is a derivative of it.
-    full = {}
-    frames = []
-    for name, _ in DEMO_STUDIES:
-        trials, sessions = load_sessions([root / name])
-        reports = root / name / bids.DERIVATIVE
-        bids.ensure_derivative(reports, name)
-        full.update(write_reports(trials, sessions, reports)[1])
-        frames.append(trials)
-    trials = pd.concat(frames, ignore_index=True)
+    summary = [_run_study(root, name, reps, args) for name, reps in DEMO_STUDIES]
+    full, trials = _analyse(root)
     out("\nWhat the model participants did, and the first test each study declares:")
-    for name, exp, n_trials in summary:
-        a = full[name]["analysis"]
-        sub = trials[trials["experiment"] == name]
-        if sub["correct"].notna().any():
-            what = f"recognition rate {sub['correct'].astype(float).mean():.0%}"
-        else:
-            parts = []
-            for q, g in sub.groupby("question"):
-                parts.append(f"mean {q} {pd.to_numeric(g['answer']).mean():.2f}")
-            what = ", ".join(parts)
-        out(f"  {name:<24} {args.participants} x {n_trials} trials, {what}")
-        out(f"  {'':<24} {_headline(a)}")
+    for name, _, n_trials in summary:
+        out(f"  {name:<24} {args.participants} x {n_trials} trials, "
+            f"{_what_they_did(trials[trials['experiment'] == name])}")
+        out(f"  {'':<24} {_headline(full[name]['analysis'])}")
     out(f"\nTook {time.perf_counter() - t0:.0f} s. Everything is in {root}/:")
     out(f"  {root}/<study>/               a BIDS dataset per study, as a real session "
         "writes it:")
@@ -123,6 +75,66 @@ def cmd_demo(args) -> int:
         "--target-power 0.8")
     out("Or run a person: README.md, \"Running a session with a participant\".")
     return 0
+
+
+def _run_study(root: Path, name: str, reps: int, args) -> tuple:
+    """The short version of study ``name`` run by every model participant; says so and
+    returns ``(name, experiment, trials per participant)``."""
+    from ..compile import compile_conditions
+    from ..devices.sim import SimDevice
+    from ..experiment import load_experiment
+    from ..observer import ModelObserver, ObserverModel
+    from ..resources import experiments_dir
+    from ..session import SessionOptions, run_session
+
+    src = experiments_dir() / f"{name}.yaml"
+    path = _short_version(src, root / "experiments" / f"{name}.yaml", reps)
+    lx = load_experiment(path)
+    exp = lx.experiment
+    model = ObserverModel.for_experiment(lx)
+    conds = compile_conditions(lx, model.profile)
+    n_trials = 0
+    for i in range(1, args.participants + 1):
+        pid = f"sim{i:02d}"
+        res = run_session(lx, SimDevice(model.profile),
+                          ModelObserver(model, pid, 1, seed=args.seed),
+                          SessionOptions(participant=pid, data_dir=root,
+                                         conditions=conds, command=sys.argv))
+        n_trials = len({r.trial for r in res.records})
+    out(f"  {exp.title}\n    {exp.reference}; {exp.device}; {len(conds)} conditions x "
+        f"{reps} repetition{'s' if reps > 1 else ''} = {n_trials} trials per participant: "
+        "logged")
+    return name, exp, n_trials
+
+
+def _analyse(root: Path):
+    """Each study's sessions are a BIDS dataset; its report is a derivative of it. Returns
+    what ``write_reports`` says of each study, and every study's trials in one table."""
+    import pandas as pd
+
+    from .. import bids
+    from ..analysis import load_sessions
+    from ..analysis.report import write_reports
+
+    full = {}
+    frames = []
+    for name, _ in DEMO_STUDIES:
+        trials, sessions = load_sessions([root / name])
+        reports = root / name / bids.DERIVATIVE
+        bids.ensure_derivative(reports, name)
+        full.update(write_reports(trials, sessions, reports)[1])
+        frames.append(trials)
+    return full, pd.concat(frames, ignore_index=True)
+
+
+def _what_they_did(sub) -> str:
+    """A study's recognition rate, or the mean answer to each question without a right one."""
+    import pandas as pd
+
+    if sub["correct"].notna().any():
+        return f"recognition rate {sub['correct'].astype(float).mean():.0%}"
+    return ", ".join(f"mean {q} {pd.to_numeric(g['answer']).mean():.2f}"
+                     for q, g in sub.groupby("question"))
 
 
 def register(sub) -> None:
