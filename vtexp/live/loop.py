@@ -201,6 +201,18 @@ class _Pending:
         return old.state_at(old.phase(now, self.old_epoch)) if old is not None else {}
 
 
+@dataclass
+class _Loop:
+    """What one run of the loop carries from one turn to the next."""
+
+    last_frame_at: float                # host time of the newest frame taken
+    end_at: float                       # host time the run's duration ends (inf: none)
+    last_desired: dict[Actuator, Drive] | None = None   # the outputs last streamed
+    pending: _Pending | None = None
+    deadline_at: float | None = None    # when the device's deadline fell due
+    failures: int = 0                   # streams failed in a row
+
+
 class LiveRun:
     """A live run (module docstring). ``sinks`` are called with each event the run
     records: ``("frame", dict)`` per frame processed, ``("program", dict)`` per new
@@ -242,89 +254,18 @@ class LiveRun:
     # -- the loop ---------------------------------------------------------------------------
     def run(self) -> LiveStats:
         st = self.stats
-        dev = self.device
-        self.source.open()
-        try:
-            dev.open()
-        except BaseException:
-            self.source.close()
-            raise
+        capture = self._open()
         clock = self.clock
-        try:
-            capture = Capture(self.source, self.mailbox)
-        except BaseException:
-            self.source.close()
-            raise
         st.started = clock.now()
         capture.start()
-        last_desired: dict[Actuator, Drive] | None = None
-        pending: _Pending | None = None
-        deadline_at: float | None = None
-        failures = 0
-        last_frame_at = st.started
-        end_at = st.started + self.duration_s if self.duration_s else math.inf
+        loop = _Loop(last_frame_at=st.started,
+                     end_at=st.started + self.duration_s if self.duration_s else math.inf)
         switch = sys.getswitchinterval()
         sys.setswitchinterval(0.0005)       # the loop wakes on time while others compute
         try:
-            while True:
-                now = clock.now()
-                if self._stop.is_set():
-                    break
-                if self.should_stop is not None:
-                    why = self.should_stop()
-                    if why:
-                        self.stop(why if isinstance(why, str) else "stopped")
-                        break
-                if now >= end_at:
-                    self.stop(f"{self.duration_s:g} s elapsed")
-                    break
-                try:
-                    frame = self.mailbox.take()
-                except SourceEnded:
-                    self.stop(f"end of {self.source.label}")
-                    break
-                if frame is not None:
-                    last_frame_at = now
-                    pending = self._process(frame, pending)
-                elif now - last_frame_at > self.stall_s:
-                    raise InputError(f"{self.source.label} stopped delivering frames (none for "
-                                     f"{self.stall_s:g} s)", key="SOURCE")
-                now = clock.now()
-                prog = self.program
-                desired = prog.state_at(prog.phase(now, self.epoch)) if prog else {}
-                deadline = dev.stream_deadline_s()
-                due = deadline is not None and deadline <= 0
-                if due and deadline_at is not None:
-                    st.deadline_late_ms.append((now - deadline_at) * 1000.0)
-                try:
-                    if desired != last_desired or due:
-                        rep = dev.stream(desired)
-                        last_desired = desired
-                        pending = self._sent(rep, desired, pending, now)
-                    else:
-                        dev.stream_alive()
-                    failures = 0
-                except DeviceError as e:
-                    # A stalled loop lets the device's watchdog end the session (every
-                    # actuator off); open it again and go on, unless that keeps failing.
-                    failures += 1
-                    if failures > 3 or self.reconnect is False:
-                        raise
-                    self._reconnect(e)
-                    last_desired = None
-                    continue
-                # Sleep until something happens.
-                now = clock.now()
-                waits = [end_at - now, self.stall_s - (now - last_frame_at) + 0.001,
-                         dev.stream_checkin_ms / 2000.0]
-                if prog is not None:
-                    waits.append(prog.ms_to_next_change(prog.phase(now, self.epoch)) / 1000.0
-                                 + 0.0002)
-                deadline = dev.stream_deadline_s()
-                deadline_at = None if deadline is None else now + deadline
-                if deadline is not None:
-                    waits.append(deadline)
-                self.mailbox.wait(max(0.0, min(waits)))
+            while not self._should_end(loop):
+                if self._stream(loop):
+                    self._sleep(loop)
         except KeyboardInterrupt:
             self.stop("interrupted (Ctrl-C)")
             raise
@@ -336,22 +277,111 @@ class LiveRun:
             raise
         finally:
             sys.setswitchinterval(switch)
-            try:
-                t_off = clock.now()
-                dev.all_off()
-                self._emit("output", {
-                    "t_host": t_off, "t_device_ms": None, "t_onset_host": None, "frame": None,
-                    "changed": len(self._applied), "on": 0, "applied": {}, "degradations": [],
-                    "latency_ms": None, "latency_frame": None})
-                self._applied = {}
-            finally:
-                st.ended = clock.now()
-                capture.stop()
-                st.frames_captured = self.mailbox.captured
-                st.frames_dropped = self.mailbox.dropped
-                self._emit("end", st.summary())
-                self._snapshot({})
+            self._close(capture)
         return st
+
+    def _open(self) -> Capture:
+        """The source, the device and the capture thread (not started), or nothing open."""
+        self.source.open()
+        try:
+            self.device.open()
+            return Capture(self.source, self.mailbox)
+        except BaseException:
+            self.source.close()
+            raise
+
+    def _should_end(self, loop: _Loop) -> bool:
+        """Whether the run ends now (stopped, asked to, its duration over, the source
+        ended); else the newest frame, if any, is processed."""
+        now = self.clock.now()
+        if self._stop.is_set():
+            return True
+        if self.should_stop is not None:
+            why = self.should_stop()
+            if why:
+                self.stop(why if isinstance(why, str) else "stopped")
+                return True
+        if now >= loop.end_at:
+            self.stop(f"{self.duration_s:g} s elapsed")
+            return True
+        try:
+            frame = self.mailbox.take()
+        except SourceEnded:
+            self.stop(f"end of {self.source.label}")
+            return True
+        if frame is not None:
+            loop.last_frame_at = now
+            loop.pending = self._process(frame, loop.pending)
+        elif now - loop.last_frame_at > self.stall_s:
+            raise InputError(f"{self.source.label} stopped delivering frames (none for "
+                             f"{self.stall_s:g} s)", key="SOURCE")
+        return False
+
+    def _stream(self, loop: _Loop) -> bool:
+        """The program's outputs now to the device (or that the host is alive); False if
+        the device had to be opened again (the loop goes round at once)."""
+        dev, st = self.device, self.stats
+        now = self.clock.now()
+        prog = self.program
+        desired = prog.state_at(prog.phase(now, self.epoch)) if prog else {}
+        deadline = dev.stream_deadline_s()
+        due = deadline is not None and deadline <= 0
+        if due and loop.deadline_at is not None:
+            st.deadline_late_ms.append((now - loop.deadline_at) * 1000.0)
+        try:
+            if desired != loop.last_desired or due:
+                rep = dev.stream(desired)
+                loop.last_desired = desired
+                loop.pending = self._sent(rep, desired, loop.pending, now)
+            else:
+                dev.stream_alive()
+            loop.failures = 0
+        except DeviceError as e:
+            # A stalled loop lets the device's watchdog end the session (every
+            # actuator off); open it again and go on, unless that keeps failing.
+            loop.failures += 1
+            if loop.failures > 3 or self.reconnect is False:
+                raise
+            self._reconnect(e)
+            loop.last_desired = None
+            return False
+        return True
+
+    def _sleep(self, loop: _Loop) -> None:
+        """Sleep until something happens: a frame, the program's next change, the device's
+        deadline or check-in, a stall, the end."""
+        dev = self.device
+        now = self.clock.now()
+        waits = [loop.end_at - now, self.stall_s - (now - loop.last_frame_at) + 0.001,
+                 dev.stream_checkin_ms / 2000.0]
+        prog = self.program
+        if prog is not None:
+            waits.append(prog.ms_to_next_change(prog.phase(now, self.epoch)) / 1000.0
+                         + 0.0002)
+        deadline = dev.stream_deadline_s()
+        loop.deadline_at = None if deadline is None else now + deadline
+        if deadline is not None:
+            waits.append(deadline)
+        self.mailbox.wait(max(0.0, min(waits)))
+
+    def _close(self, capture: Capture) -> None:
+        """Every actuator off (recorded), the capture stopped, the run's end recorded."""
+        st, clock = self.stats, self.clock
+        try:
+            t_off = clock.now()
+            self.device.all_off()
+            self._emit("output", {
+                "t_host": t_off, "t_device_ms": None, "t_onset_host": None, "frame": None,
+                "changed": len(self._applied), "on": 0, "applied": {}, "degradations": [],
+                "latency_ms": None, "latency_frame": None})
+            self._applied = {}
+        finally:
+            st.ended = clock.now()
+            capture.stop()
+            st.frames_captured = self.mailbox.captured
+            st.frames_dropped = self.mailbox.dropped
+            self._emit("end", st.summary())
+            self._snapshot({})
 
     def _reconnect(self, error: DeviceError) -> None:
         st = self.stats
