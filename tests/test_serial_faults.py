@@ -466,3 +466,30 @@ def test_a_wrong_link_setting_is_named(spec, says):
     from vtexp.errors import InputError
     with pytest.raises(InputError, match=says):
         open_device(spec, VEST)
+
+
+def test_a_play_the_watchdog_stopped_keeps_the_onsets_it_played(emu, clock):
+    """The host fell silent in the middle of a play (its heartbeats held back): the
+    device's watchdog stopped the play and ended the session. The onsets of the pulses
+    it played are not lost: the host asks for them with GET_ONSETS (served without a
+    session) before its next HELLO forgets them, and the error carries them."""
+    from vtexp.devices.serial_device import PlayInterrupted
+
+    s = Schedule(device="vest_6x8", pulses=[
+        Pulse(row=0, col=0, onset_ms=0, duration_ms=100, level=1),
+        Pulse(row=1, col=1, onset_ms=50, duration_ms=900, level=2),
+        Pulse(row=2, col=2, onset_ms=800, duration_ms=100, level=1)])
+    dev = SerialDevice(VEST, emu.port, clock=clock)
+    with dev:
+        dev.open()
+        dev._link.may_heartbeat = lambda now: False
+        with pytest.raises(PlayInterrupted) as exc:
+            dev.play(s)
+        played = exc.value.report
+        assert played.completed is False
+        assert [(p.row, p.col) for p in played.pulses] == [(0, 0), (1, 1)]
+        assert played.pulses[1].onset_ms - played.pulses[0].onset_ms == pytest.approx(50, abs=1)
+        assert "the play stopped after 2 of 3 onsets" in str(exc.value)
+        assert emu.firmware.counters.watchdog_trips == 1
+        dev._link.may_heartbeat = dev._may_heartbeat
+        dev.play(sweep(2))                   # a new session: the next play plays

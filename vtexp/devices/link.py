@@ -194,6 +194,13 @@ class Link:
         except Exception:           # already gone (unplugged): nothing left to release
             pass
 
+    def accept_frames_up_to(self, max_payload: int) -> None:
+        """Take device frames of ``max_payload`` + 7 raw bytes if that is more than the
+        reader already takes (docs/protocol.md, "The largest frame a host must accept")."""
+        need = max_payload + wire.MIN_FRAME
+        if need > self._reader.max_frame:
+            self._reader = wire.FrameReader(max_frame=need)
+
     # -- state ------------------------------------------------------------------------------
     @property
     def silence_limit_s(self) -> float | None:

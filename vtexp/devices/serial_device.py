@@ -166,6 +166,15 @@ class _PlayState:
     triggered: bool = False         # the device acknowledged the TRIGGER: it played
 
 
+class PlayInterrupted(DeviceError):
+    """The device's watchdog stopped a play: every actuator is off. :attr:`report` holds
+    the pulses that were played, with their device-reported onsets (``completed`` false)."""
+
+    def __init__(self, message: str, report: PlayReport):
+        super().__init__(message)
+        self.report = report
+
+
 class SerialDevice(DeviceBase):
     """A vtexp array on a serial port (see the module docstring).
 
@@ -261,6 +270,7 @@ class SerialDevice(DeviceBase):
         try:
             self.hello = hello = self._handshake(link)
             self._check_against_profile(hello)
+            link.accept_frames_up_to(hello.max_payload)
             link.start_heartbeat(hello.heartbeat_ms)
         except BaseException:
             link.close()
@@ -485,8 +495,7 @@ class SerialDevice(DeviceBase):
         if st.done is not None and st.done.reason != DoneReason.FINISHED:
             self._current = None
             if st.done.reason == DoneReason.WATCHDOG:
-                raise DeviceError(f"{self._watchdog_message()}; the play stopped after "
-                                  f"{st.done.n_onsets} of {len(wp)} onsets")
+                raise self._interrupted(link, st, pulses, start_us, schedule)
             raise DeviceError(f"the device on {self.port} stopped the play early "
                               f"({DoneReason.NAMES.get(st.done.reason, st.done.reason)}) "
                               f"after {st.done.n_onsets} of {len(wp)} onsets")
@@ -587,11 +596,31 @@ class SerialDevice(DeviceBase):
                 deadline = clock.now() + hb       # still going (device clock slower?)
                 continue
             if status.state == wire.DeviceState.NO_SESSION:
-                raise DeviceError(f"the device on {self.port} ended the session during the "
-                                  "play (its watchdog fired): every actuator is off")
+                st.done = PlayDone(st.play_id, DoneReason.WATCHDOG, status.n_onsets, 0)
+                return                  # the watchdog stopped it; its PLAY_DONE was lost
             return                      # finished; the PLAY_DONE event was lost on the line
 
-    def _fetch_missing(self, link: Link, st: _PlayState) -> None:
+    def _interrupted(self, link: Link, st: _PlayState, pulses: list[Pulse], start_us: int,
+                     schedule: Schedule) -> PlayInterrupted:
+        """The error for a play the device's watchdog stopped, with the onsets of the
+        pulses it did play: asked for with GET_ONSETS, which the device serves without a
+        session, before a HELLO would forget them (docs/protocol.md, "Session")."""
+        try:
+            self._fetch_missing(link, st, played_only=True)
+        except DeviceError:
+            pass                        # a device of an older edition: NO_SESSION
+        played = [PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
+                              onset_ms=(t - start_us) / 1000.0, duration_ms=p.duration_ms,
+                              level=p.level, train=p.train)
+                  for p, t in zip(pulses, st.onsets) if t is not None]
+        report = self._report(start_us, schedule, played).model_copy(
+            update={"completed": False})
+        known = sum(t is not None for t in st.onsets)
+        return PlayInterrupted(
+            f"{self._watchdog_message()}; the play stopped after {known} of {len(pulses)} "
+            "onsets (their device-reported times are kept with the error)", report)
+
+    def _fetch_missing(self, link: Link, st: _PlayState, *, played_only: bool = False) -> None:
         """Ask again for onsets whose ONSET events were lost (counted, never guessed)."""
         fit = (self._payload_budget() - 5) // 8
         while (missing := [i for i, t in enumerate(st.onsets) if t is None]):
@@ -601,6 +630,9 @@ class SerialDevice(DeviceBase):
                               reply_bytes=8 * count + 16)
             for k, t in enumerate(rep.times_us):
                 if st.onsets[first + k] is None:
+                    if t == wire.NOT_PLAYED and played_only:
+                        st.onsets[first + k] = -1      # asked, not played
+                        continue
                     if t == wire.NOT_PLAYED:
                         raise DeviceError(f"the device on {self.port} did not play pulse "
                                           f"{first + k} of the schedule")
@@ -608,6 +640,8 @@ class SerialDevice(DeviceBase):
                     self.recovered["onsets_fetched"] += 1
             if not rep.times_us:
                 raise DeviceError(f"the device on {self.port} has no onset for pulse {first}")
+        if played_only:
+            st.onsets = [None if t == -1 else t for t in st.onsets]
 
     def _payload_budget(self) -> int:
         """Largest payload to put in one frame: what the device takes, and no more than
