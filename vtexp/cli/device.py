@@ -7,7 +7,10 @@
   asking whether it moved (``--yes`` plays them all without asking, for scripts);
 - ``monitor --device serial:PORT``: a tap that decodes and prints the traffic;
 - ``emulate --profile NAME``: an emulated device on a pseudo-terminal, until
-  stopped (Ctrl-C or SIGTERM), optionally with line faults.
+  stopped (Ctrl-C or SIGTERM), optionally with line faults;
+- ``conform --device serial:PORT``: the device's firmware against the protocol's
+  rules and (through its vector runner) every vector, as a pass/fail table
+  (:mod:`vtexp.devices.conform`).
 
 The checks themselves are :mod:`vtexp.devices.check` (``vtexp run`` makes them
 too). Only argparse is imported here; each command imports what it needs, so
@@ -84,6 +87,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--verbose", "-v", action="store_true",
                    help="print every frame received and sent")
     s.set_defaults(func=cmd_emulate)
+
+    s = ds.add_parser("conform", help="check a device's firmware against wire protocol v1 "
+                                      "(every rule, and every vector through its runner)")
+    s.add_argument("--device", required=True,
+                   help="serial:PORT (a device as flashed), or a built-in one: emulator, "
+                        "emulator:host (the C firmware on this computer), emulator:avr "
+                        "(the ATmega2560 build in simavr)")
+    s.add_argument("--vectors", metavar="RUNNER",
+                   help="where the vectors run: serial:PORT of the firmware's vector runner "
+                        "(docs/firmware.md), or python, host, avr; the built-in devices "
+                        "bring their own")
+    s.add_argument("--profile", default="vest_6x8",
+                   help="with a built-in device: the profile it is built to (default "
+                        "vest_6x8)")
+    s.add_argument("--baud", type=int, default=1_000_000,
+                   help="UART baud rate (default 1000000, the reference firmware's)")
+    s.set_defaults(func=cmd_conform)
 
 
 # --------------------------------------------------------------------------- list
@@ -179,6 +199,14 @@ def _check_summary(failed, played, n, dev, unattended: bool) -> int:
 
 
 # --------------------------------------------------------------------------- monitor
+
+def cmd_conform(args: argparse.Namespace) -> int:
+    from ..devices.conform import conform, table
+
+    rows = conform(args.device, profile=args.profile, vectors=args.vectors, baud=args.baud)
+    out(table(rows))
+    return 1 if any(r.outcome == "FAIL" for r in rows) else 0
+
 
 def cmd_monitor(args: argparse.Namespace) -> int:
     from ..devices.monitor import open_tap
