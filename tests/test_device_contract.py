@@ -92,7 +92,7 @@ def make_backend(name: str) -> Backend:
                 proc = AvrSimulator(prof.name)
             procs.append(proc)
             # a second's heartbeat: the simulated chip may lag the wall clock under load
-            dev = open_device(f"serial:{proc.start()},heartbeat_ms=1000,reply_ms=250", prof)
+            dev = open_device(f"serial:{proc.start()},heartbeat_ms=1000,reply_ms=120", prof)
             dev.test_firmware = proc
             return dev
 

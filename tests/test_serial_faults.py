@@ -23,11 +23,11 @@ from pathlib import Path
 import pytest
 
 from vtexp.clock import VirtualClock
-from vtexp.devices import open_device
+from vtexp.devices import open_device, wire
 from vtexp.devices.emulator import Faults, LoopbackEmulator, PtyEmulator
 from vtexp.devices.link import DeviceLost
 from vtexp.devices.serial_device import SerialDevice, setting_of
-from vtexp.devices.wire import Onset
+from vtexp.devices.wire import Onset, Status
 from vtexp.errors import DeviceError
 from vtexp.model import DeviceProfile, Pulse, PulseTrain, Schedule
 
@@ -493,3 +493,35 @@ def test_a_play_the_watchdog_stopped_keeps_the_onsets_it_played(emu, clock):
         assert emu.firmware.counters.watchdog_trips == 1
         dev._link.may_heartbeat = dev._may_heartbeat
         dev.play(sweep(2))                   # a new session: the next play plays
+
+
+@pytest.mark.parametrize("heartbeat_ms, reply_ms, survives", [
+    (200, 25, True),                 # the defaults
+    (1000, 120, True),               # the simulated chip's, as 'device emulate' suggests
+    (1000, 250, False),              # its earlier suggestion: three attempts fit
+], ids=["defaults", "avr-suggested", "avr-before"])
+def test_four_replies_lost_in_a_row_do_not_lose_the_device(clock, heartbeat_ms, reply_ms,
+                                                           survives):
+    """Every reply of a request lost four times in a row (a noisy line): the fifth attempt
+    is answered within the silence limit with the defaults and with the settings suggested
+    for the simulated chip, which 'vtexp device emulate --firmware avr' prints."""
+    from vtexp.devices.link import suggested_reply_ms
+
+    if survives and heartbeat_ms != 200:
+        assert suggested_reply_ms(heartbeat_ms) == reply_ms
+    emu = LoopbackEmulator.for_profile(VEST, clock=clock)
+    with emu:
+        dev = SerialDevice(VEST, emu.port, heartbeat_ms=heartbeat_ms, reply_timeout_ms=reply_ms,
+                           clock=clock)
+        with dev:
+            dev.open()
+            link = dev._link
+            wait_s = link.reply_timeout_for(len(wire.encode(Status(), 0)))
+            emu.faults = Faults(drop_rate=1.0, direction="to_host")
+            clock.call_later(3.5 * wait_s, lambda: setattr(emu, "faults", Faults()))
+            if survives:
+                dev.status()
+                assert link.stats.timeouts == 4
+            else:
+                with pytest.raises(DeviceLost):
+                    dev.status()

@@ -286,6 +286,7 @@ def _emulate_c_firmware(args: argparse.Namespace, profile) -> int:
     """``vtexp device emulate --firmware avr|host``: the reference firmware in C."""
     from ..devices.base import stream_watchdog_limit_ms
     from ..devices.cfirmware import AvrSimulator, HostFirmware
+    from ..devices.link import suggested_reply_ms
     from ..errors import InputError
 
     for flag, value in (("--delay-ms", args.delay_ms), ("--rows", args.rows),
@@ -309,20 +310,27 @@ def _emulate_c_firmware(args: argparse.Namespace, profile) -> int:
         what = "the reference firmware built for this computer"
     port = proc.start()
     out(f"emulating {profile.name} with {what} on {port}")
+    # A reply wait that fits five attempts of a request in the silence limit, as the
+    # defaults do: four replies lost in a row on a noisy line do not lose the session
+    # (a longer wait, 250 ms with a 1 s heartbeat, survived two).
+    reply = suggested_reply_ms(1000)
     if args.firmware == "avr" and args.lockstep:
         # the host keeps time by the chip, which runs on while a busy host's threads wait
-        # for the processor: the same slower heartbeat and longer wait for replies
-        spec = f"serial:{port},heartbeat_ms=1000,reply_ms=250,lockstep={proc.lockstep_path}"
+        # for the processor: the same slower heartbeat
+        spec = (f"serial:{port},heartbeat_ms=1000,reply_ms={reply},"
+                f"lockstep={proc.lockstep_path}")
         out(f"use it with --device {spec}   (in lockstep: the chip's time, as fast as this "
             "computer goes; Ctrl-C to stop)")
     elif args.firmware == "avr":
         # the simulated chip can fall behind the wall clock on a busy computer: a slower
-        # heartbeat and a longer wait for replies keep that from looking like a lost link
-        out(f"use it with --device serial:{port},heartbeat_ms=1000,reply_ms=250   "
+        # heartbeat keeps that from looking like a lost link (a reply that comes after
+        # the wait only costs a resend, answered from the device's cache)
+        out(f"use it with --device serial:{port},heartbeat_ms=1000,reply_ms={reply}   "
             "(Ctrl-C to stop)")
         live = stream_watchdog_limit_ms(profile)
         if live < 1000:         # the device's watchdog would be too long to stream with
-            out(f"with vtexp live: --device serial:{port},heartbeat_ms={live},reply_ms=250")
+            out(f"with vtexp live: --device serial:{port},heartbeat_ms={live},"
+                f"reply_ms={suggested_reply_ms(live)}")
     else:
         out(f"use it with --device serial:{port}   (Ctrl-C to stop)")
     try:
