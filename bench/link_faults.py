@@ -73,19 +73,21 @@ def avr_check(fault: str, seed: int, reply_ms: int) -> bool:
 
     with AvrSimulator("vest_6x8", seed=seed) as sim:
         dev = open_device(f"serial:{sim.port},heartbeat_ms=1000,reply_ms={reply_ms}", VEST)
+        mend = threading.Timer(float(fault[4:] or 0), lambda: sim.command("faults 0 0 0"))
         try:
             dev.open()
             if fault == "ber":
                 sim.command("faults 0.0034 0.0033 0.0033")
             else:
                 sim.command("faults 1 0 0")
-                threading.Timer(float(fault[4:]), lambda: sim.command("faults 0 0 0")).start()
+                mend.start()
             check_ready(dev, VEST, pings=20, say=lambda s: None)
             return True
         except DeviceError:
             return False
         finally:
-            time.sleep(0.05)
+            mend.cancel()
+            mend.join()
             sim.command("faults 0 0 0")
             try:
                 dev.close()
