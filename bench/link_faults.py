@@ -87,7 +87,8 @@ def avr_check(fault: str, seed: int, reply_ms: int) -> bool:
             return False
         finally:
             mend.cancel()
-            mend.join()
+            if mend.ident is not None:          # started (a cut): wait until it is mended
+                mend.join()
             sim.command("faults 0 0 0")
             try:
                 dev.close()
