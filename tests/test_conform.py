@@ -1,7 +1,7 @@
 """``vtexp device conform``: a third party's check of a firmware against wire protocol v1.
 
-It passes against vtexp's emulator over a real pty and against the C firmware's host
-build (each with its own vector runner), fails a device that answers one rule
+It passes against vtexp's emulator over a real pty, against the C firmware's host
+build and against its ATmega2560 build in simavr (each with its own vector runner), fails a device that answers one rule
 otherwise (naming the row), and says in one line that a port where nothing answers has
 no device on it.
 """
@@ -40,6 +40,14 @@ def test_the_c_firmwares_host_build_conforms():
     assert _failed(rows) == []
     assert {r.kind for r in rows} == {"rule", "vector"}
     assert len([r for r in rows if r.kind == "rule"]) == len(conform.RULES)
+
+
+@pytest.mark.slow
+def test_the_atmega2560_build_in_simavr_conforms():
+    rows = conform.conform("emulator:avr")
+    assert _failed(rows) == []
+    assert len([r for r in rows if r.kind == "rule" and r.outcome == "pass"]) == len(
+        conform.RULES)
 
 
 class _ReadsTheOldText(Firmware):
