@@ -470,27 +470,34 @@ def check_rules(port: Any, name: str) -> Iterator[Row]:
     answers no HELLO at all is one :class:`DeviceError`, before any row."""
     c = RawClient(port, name)
     deadline = time.monotonic() + 3.0
-    while c.hello is None:
-        try:
-            c.open_session()
-        except Failed:
-            if time.monotonic() > deadline:
+    try:
+        while c.hello is None:
+            try:
+                c.open_session()
+            except Failed as e:
+                if time.monotonic() < deadline:
+                    continue
+                if not str(e).startswith("no reply"):
+                    raise DeviceError(f"the device on {name} does not speak "
+                                      f"{wire.PROTOCOL_NAME}: {e}") from None
                 raise DeviceError(
                     f"no device answered the vtexp handshake (HELLO) on {name} within 3 s. "
                     f"Is a device with {wire.PROTOCOL_NAME} firmware on this port, at the "
                     "right baud rate (--baud)? 'vtexp device list' shows the ports.") from None
-    for row_name, rule in RULES:
-        c.drain(0.02)
-        try:
-            detail = rule(c)
-            yield Row("rule", row_name, "pass", detail)
-        except Failed as e:
-            yield Row("rule", row_name, "FAIL", str(e))
-        finally:
-            try:                            # whatever happened, leave everything off
-                c.request(AllOff(), timeout_s=0.5)
-            except Failed:
-                pass
+        for row_name, rule in RULES:
+            c.drain(0.02)
+            try:
+                detail = rule(c)
+                yield Row("rule", row_name, "pass", detail)
+            except Failed as e:
+                yield Row("rule", row_name, "FAIL", str(e))
+            finally:
+                try:                            # whatever happened, leave everything off
+                    c.request(AllOff(), timeout_s=0.5)
+                except Failed:
+                    pass
+    except OSError as e:                        # pyserial's SerialException: unplugged
+        raise DeviceError(f"the port {name} failed during the conformance run: {e}") from None
 
 
 def check_vectors(runner: Callable[[str], str]) -> Iterator[Row]:
