@@ -473,7 +473,7 @@ def test_a_play_the_watchdog_stopped_keeps_the_onsets_it_played(emu, clock):
     device's watchdog stopped the play and ended the session. The onsets of the pulses
     it played are not lost: the host asks for them with GET_ONSETS (served without a
     session) before its next HELLO forgets them, and the error carries them."""
-    from vtexp.devices.serial_device import PlayInterrupted
+    from vtexp.errors import PlayInterrupted
 
     s = Schedule(device="vest_6x8", pulses=[
         Pulse(row=0, col=0, onset_ms=0, duration_ms=100, level=1),
@@ -489,6 +489,10 @@ def test_a_play_the_watchdog_stopped_keeps_the_onsets_it_played(emu, clock):
         assert played.completed is False
         assert [(p.row, p.col) for p in played.pulses] == [(0, 0), (1, 1)]
         assert played.pulses[1].onset_ms - played.pulses[0].onset_ms == pytest.approx(50, abs=1)
+        # the second pulse was cut short by the trip: it lasted until the device stopped
+        assert played.pulses[0].duration_ms == 100
+        assert played.pulses[1].duration_ms == pytest.approx(played.duration_ms - 50, abs=1)
+        assert played.duration_ms < 800
         assert "the play stopped after 2 of 3 onsets" in str(exc.value)
         assert emu.firmware.counters.watchdog_trips == 1
         dev._link.may_heartbeat = dev._may_heartbeat

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from ..clock import REAL, Clock
-from ..errors import DeviceError, InputError
+from ..errors import DeviceError, InputError, PlayInterrupted
 from ..model import (
     DeviceInfo,
     DeviceProfile,
@@ -164,15 +164,7 @@ class _PlayState:
     onsets: list[int | None] = field(default_factory=list)
     done: PlayDone | None = None
     triggered: bool = False         # the device acknowledged the TRIGGER: it played
-
-
-class PlayInterrupted(DeviceError):
-    """The device's watchdog stopped a play: every actuator is off. :attr:`report` holds
-    the pulses that were played, with their device-reported onsets (``completed`` false)."""
-
-    def __init__(self, message: str, report: PlayReport):
-        super().__init__(message)
-        self.report = report
+    alarm_us: int | None = None     # device time of a watchdog ALARM heard during the play
 
 
 class SerialDevice(DeviceBase):
@@ -451,6 +443,8 @@ class SerialDevice(DeviceBase):
             self.alarms.append(msg)
             if msg.code == wire.AlarmCode.WATCHDOG:
                 self._session_ended = "ALARM WATCHDOG"
+                if st is not None:
+                    st.alarm_us = msg.t_us
 
     # -- play -------------------------------------------------------------------------------
     def _play(self, schedule: Schedule) -> PlayReport:
@@ -602,46 +596,66 @@ class SerialDevice(DeviceBase):
 
     def _interrupted(self, link: Link, st: _PlayState, pulses: list[Pulse], start_us: int,
                      schedule: Schedule) -> PlayInterrupted:
-        """The error for a play the device's watchdog stopped, with the onsets of the
-        pulses it did play: asked for with GET_ONSETS, which the device serves without a
-        session, before a HELLO would forget them (docs/protocol.md, "Session")."""
+        """The error for a play the device's watchdog stopped, with the pulses it did play:
+        their onsets asked for with GET_ONSETS, which the device serves without a session,
+        before a HELLO would forget them (docs/protocol.md, "Session"). A device of the
+        previous edition answers NO_SESSION: then only the onsets whose ONSET events were
+        heard are kept. A pulse the trip cut short lasts until the device's stop time (its
+        PLAY_DONE or ALARM), when that was heard."""
         try:
             self._fetch_missing(link, st, played_only=True)
         except DeviceError:
-            pass                        # a device of an older edition: NO_SESSION
-        played = [PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
-                              onset_ms=(t - start_us) / 1000.0, duration_ms=p.duration_ms,
-                              level=p.level, train=p.train)
-                  for p, t in zip(pulses, st.onsets) if t is not None]
-        report = self._report(start_us, schedule, played).model_copy(
-            update={"completed": False})
-        known = sum(t is not None for t in st.onsets)
+            pass            # NO_SESSION (previous edition), or the line failed: keep what was heard
+        stop_us = st.done.t_us if st.done is not None and st.done.t_us else st.alarm_us
+        played = []
+        for p, t in zip(pulses, st.onsets):
+            if t is None:
+                continue
+            dur = p.duration_ms
+            if stop_us is not None and stop_us >= t:
+                dur = min(dur, (stop_us - t) / 1000.0)
+            played.append(PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
+                                      onset_ms=(t - start_us) / 1000.0, duration_ms=dur,
+                                      level=p.level, train=p.train))
+        report = self._report(start_us, schedule, played)
+        update: dict[str, Any] = {"completed": False}
+        if stop_us is not None and stop_us >= start_us:
+            update["duration_ms"] = min(schedule.duration_ms, (stop_us - start_us) / 1000.0)
+        report = report.model_copy(update=update)
+        n_played = st.done.n_onsets if st.done is not None else len(played)
+        lost = (f"; the times of {n_played - len(played)} more it played are not known: the "
+                "device does not serve GET_ONSETS without a session (firmware of the previous "
+                "edition of the wire protocol; update it)" if n_played > len(played) else "")
         return PlayInterrupted(
-            f"{self._watchdog_message()}; the play stopped after {known} of {len(pulses)} "
-            "onsets (their device-reported times are kept with the error)", report)
+            f"{self._watchdog_message()}; the play stopped after {n_played} of {len(pulses)} "
+            f"onsets (the {len(played)} onsets the device reported are kept with the error"
+            f"{lost})", report)
 
     def _fetch_missing(self, link: Link, st: _PlayState, *, played_only: bool = False) -> None:
-        """Ask again for onsets whose ONSET events were lost (counted, never guessed)."""
+        """Ask again for onsets whose ONSET events were lost (counted, never guessed).
+
+        ``played_only``: the play was stopped early; a pulse the device did not play stays
+        None (else that is an error)."""
         fit = (self._payload_budget() - 5) // 8
-        while (missing := [i for i, t in enumerate(st.onsets) if t is None]):
+        first = 0
+        while (missing := [i for i, t in enumerate(st.onsets) if t is None and i >= first]):
             first = missing[0]
             count = min(fit, missing[-1] - first + 1)
             rep = link.expect(GetOnsets(st.play_id, first, count), OnsetsReply,
                               reply_bytes=8 * count + 16)
-            for k, t in enumerate(rep.times_us):
-                if st.onsets[first + k] is None:
-                    if t == wire.NOT_PLAYED and played_only:
-                        st.onsets[first + k] = -1      # asked, not played
-                        continue
-                    if t == wire.NOT_PLAYED:
-                        raise DeviceError(f"the device on {self.port} did not play pulse "
-                                          f"{first + k} of the schedule")
-                    st.onsets[first + k] = t
-                    self.recovered["onsets_fetched"] += 1
             if not rep.times_us:
                 raise DeviceError(f"the device on {self.port} has no onset for pulse {first}")
-        if played_only:
-            st.onsets = [None if t == -1 else t for t in st.onsets]
+            for k, t in enumerate(rep.times_us):
+                if st.onsets[first + k] is not None:
+                    continue
+                if t == wire.NOT_PLAYED:
+                    if played_only:
+                        continue            # not played before the play stopped
+                    raise DeviceError(f"the device on {self.port} did not play pulse "
+                                      f"{first + k} of the schedule")
+                st.onsets[first + k] = t
+                self.recovered["onsets_fetched"] += 1
+            first += len(rep.times_us)
 
     def _payload_budget(self) -> int:
         """Largest payload to put in one frame: what the device takes, and no more than
