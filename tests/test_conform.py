@@ -96,3 +96,14 @@ def test_a_port_where_nothing_answers_is_one_message(cli):
     err = r.stderr.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert "no device answered the vtexp handshake (HELLO) on /dev/" in err
+
+
+def test_a_vector_runner_port_that_does_not_open_is_named():
+    """--vectors serial:PORT where no port is: a message naming it, not pyserial's
+    traceback."""
+    from vtexp.errors import DeviceError
+
+    with pytest.raises(DeviceError, match="cannot open the vector runner's serial port "
+                                          "'/dev/vtexp-no-such-port'"):
+        with conform.vector_runner("serial:/dev/vtexp-no-such-port"):
+            pass

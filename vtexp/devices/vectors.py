@@ -218,7 +218,11 @@ class SerialRunner:
     def __init__(self, port: str, baudrate: int = 1_000_000, timeout_s: float = 10.0):
         import serial
 
-        self.port = serial.serial_for_url(port, baudrate=baudrate, timeout=0.2)
+        try:
+            self.port = serial.serial_for_url(port, baudrate=baudrate, timeout=0.2)
+        except (ValueError, OSError) as e:      # pyserial's SerialException is an OSError
+            raise DeviceError(f"cannot open the vector runner's serial port {port!r}: {e}. "
+                              "'vtexp device list' shows the ports found.") from None
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
             self.port.write((self.PROBE[0] + "\n").encode())
@@ -229,6 +233,7 @@ class SerialRunner:
                 self.port.reset_input_buffer()
                 self.port.timeout = timeout_s
                 return
+        self.port.close()
         raise DeviceError(f"no vector runner answered on {port} (flash it with 'vtexp firmware "
                           "flash --profile vectors')")
 
