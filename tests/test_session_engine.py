@@ -465,3 +465,37 @@ def test_a_device_of_the_previous_edition_keeps_only_the_onsets_heard(tmp_path,
     heard = sorted(x for x in rose if not any(round(t / 1000, 3) == x[2] for _, t in lost))
     assert _logged(paths, 2) == {0: heard}
     assert "are not known" in str(asked[0]) and "previous edition" in str(asked[0])
+
+
+def test_a_link_lost_while_the_onsets_are_asked_for_keeps_those_heard(tmp_path,
+                                                                       emulated_vest):
+    """The line fails just as the host asks for the stopped play's onsets: the error is
+    still the interrupted play (saying that contact was then lost), the onsets heard are
+    logged, and the retried trial plays on the reconnected device."""
+    from vtexp.devices.emulator import Faults
+
+    emu, dev = emulated_vest
+    fw = emu.firmware
+    serve = fw._get_onsets
+
+    def line_fails(seq, msg):
+        if not fw.session:
+            emu.faults = Faults(drop_rate=1.0, direction="to_host")
+        return serve(seq, msg)
+    fw._get_onsets = line_fails
+    stall = StallDuring(dev, trial=2)
+    asked = []
+
+    def experimenter(error, trial):
+        asked.append(error)
+        emu.faults = Faults()                       # the cable is back
+        return "retry"
+    res = _session(tmp_path, [stall], device=dev, on_device_error=experimenter)
+    assert res.status == "completed" and [r.status for r in res.records] == ["ok"] * 4
+    [error] = asked
+    assert isinstance(error, PlayInterrupted) and "contact with it was lost" in str(error)
+    paths = SessionPaths.of(tmp_path / "data", "mini", "mini", "01", 1)
+    rose = list(_rose(emu).values())
+    logged = _logged(paths, 2)
+    assert 0 < len(logged[0]) and logged[0] == sorted(rose[1])
+    assert logged[1] == sorted(rose[2])

@@ -602,10 +602,17 @@ class SerialDevice(DeviceBase):
         previous edition answers NO_SESSION: then only the onsets whose ONSET events were
         heard are kept. A pulse the trip cut short lasts until the device's stop time (its
         PLAY_DONE or ALARM), when that was heard."""
+        then = ""
         try:
             self._fetch_missing(link, st, played_only=True)
+        except DeviceLost:
+            # Said here, so that the ALL_OFF after it does not replace this error (and its
+            # report) with the loss; the next call on the device raises it again.
+            self._lost_reported = True
+            then = (f". Then contact with it was lost ({link.lost or 'the link failed'}): "
+                    "reconnect it")
         except DeviceError:
-            pass            # NO_SESSION (previous edition), or the line failed: keep what was heard
+            pass            # NO_SESSION (the previous edition): keep the onsets heard
         stop_us = st.done.t_us if st.done is not None and st.done.t_us else st.alarm_us
         played = []
         for p, t in zip(pulses, st.onsets):
@@ -629,7 +636,7 @@ class SerialDevice(DeviceBase):
         return PlayInterrupted(
             f"{self._watchdog_message()}; the play stopped after {n_played} of {len(pulses)} "
             f"onsets (the {len(played)} onsets the device reported are kept with the error"
-            f"{lost})", report)
+            f"{lost}){then}", report)
 
     def _fetch_missing(self, link: Link, st: _PlayState, *, played_only: bool = False) -> None:
         """Ask again for onsets whose ONSET events were lost (counted, never guessed).
