@@ -27,7 +27,7 @@ from vtexp.devices import open_device, wire
 from vtexp.devices.emulator import Faults, LoopbackEmulator, PtyEmulator
 from vtexp.devices.link import DeviceLost
 from vtexp.devices.serial_device import SerialDevice, setting_of
-from vtexp.devices.wire import Onset, Status
+from vtexp.devices.wire import Level, Onset, Status
 from vtexp.errors import DeviceError
 from vtexp.model import DeviceProfile, Pulse, PulseTrain, Schedule
 
@@ -529,3 +529,28 @@ def test_four_replies_lost_in_a_row_do_not_lose_the_device(clock, heartbeat_ms, 
             else:
                 with pytest.raises(DeviceLost):
                     dev.status()
+
+
+def test_a_host_timed_play_the_watchdog_stopped_is_not_played_again(emu, clock):
+    """Host-streamed timing: the host stalls between two instants (no frame, no heartbeat)
+    and the device's watchdog ends the session. The next frame is refused NO_SESSION;
+    the play is not started again from its beginning (a pulse felt twice), and the error
+    carries the onset the device acknowledged, as the emulated device's record says."""
+    from vtexp.errors import PlayInterrupted
+
+    s = Schedule(device="vest_6x8", pulses=[
+        Pulse(row=0, col=0, onset_ms=0, duration_ms=50, level=1),
+        Pulse(row=1, col=1, onset_ms=400, duration_ms=50, level=2)])
+    dev = SerialDevice(VEST, emu.port, timing="host", clock=clock)
+    with dev:
+        dev.open()
+        dev._link.may_heartbeat = lambda now: False
+        with pytest.raises(PlayInterrupted, match="stopped after 1 of 2 onsets") as exc:
+            dev.play(s)
+        dev._link.may_heartbeat = dev._may_heartbeat
+        rose = [a for a in emu.actuations() if not a.setting.is_off]
+        assert [(a.index, a.setting) for a in rose] == [(0, Level(1))]    # once
+        [p] = exc.value.report.pulses
+        assert (p.row, p.col) == (0, 0) and not exc.value.report.completed
+        assert exc.value.report.started_at_ms + p.onset_ms == rose[0].t_us / 1000
+        dev.play(sweep(2))                   # a new session: the next play plays

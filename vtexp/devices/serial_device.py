@@ -600,8 +600,7 @@ class SerialDevice(DeviceBase):
         their onsets asked for with GET_ONSETS, which the device serves without a session,
         before a HELLO would forget them (docs/protocol.md, "Session"). A device of the
         previous edition answers NO_SESSION: then only the onsets whose ONSET events were
-        heard are kept. A pulse the trip cut short lasts until the device's stop time (its
-        PLAY_DONE or ALARM), when that was heard."""
+        heard are kept."""
         then = ""
         try:
             self._fetch_missing(link, st, played_only=True)
@@ -614,8 +613,18 @@ class SerialDevice(DeviceBase):
         except DeviceError:
             pass            # NO_SESSION (the previous edition): keep the onsets heard
         stop_us = st.done.t_us if st.done is not None and st.done.t_us else st.alarm_us
+        n_played = st.done.n_onsets if st.done is not None else None
+        return self._stopped(pulses, st.onsets, start_us, schedule, stop_us, n_played, then)
+
+    def _stopped(self, pulses: list[Pulse], onsets: list[int | None], start_us: int,
+                 schedule: Schedule, stop_us: int | None, n_played: int | None = None,
+                 then: str = "") -> PlayInterrupted:
+        """:class:`PlayInterrupted` for a play the watchdog stopped: the pulses with a
+        device-reported onset (``onsets``, device µs), none guessed. A pulse the trip cut
+        short lasts until the device's stop time (``stop_us``, from its PLAY_DONE or
+        ALARM), when that was heard. ``n_played``: how many the device says it played."""
         played = []
-        for p, t in zip(pulses, st.onsets):
+        for p, t in zip(pulses, onsets):
             if t is None:
                 continue
             dur = p.duration_ms
@@ -624,19 +633,20 @@ class SerialDevice(DeviceBase):
             played.append(PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
                                       onset_ms=(t - start_us) / 1000.0, duration_ms=dur,
                                       level=p.level, train=p.train))
-        report = self._report(start_us, schedule, played)
         update: dict[str, Any] = {"completed": False}
         if stop_us is not None and stop_us >= start_us:
             update["duration_ms"] = min(schedule.duration_ms, (stop_us - start_us) / 1000.0)
-        report = report.model_copy(update=update)
-        n_played = st.done.n_onsets if st.done is not None else len(played)
-        lost = (f"; the times of {n_played - len(played)} more it played are not known: the "
-                "device does not serve GET_ONSETS without a session (firmware of the previous "
-                "edition of the wire protocol; update it)" if n_played > len(played) else "")
+        report = self._report(start_us, schedule, played).model_copy(update=update)
+        n_played = len(played) if n_played is None else n_played
+        kept = ("their device-reported times are kept with the error"
+                if n_played <= len(played) else
+                f"the device-reported times of {len(played)} are kept with the error; those of "
+                f"{n_played - len(played)} more are not known: the device does not serve "
+                "GET_ONSETS without a session (firmware of the previous edition of the wire "
+                "protocol; update it)")
         return PlayInterrupted(
             f"{self._watchdog_message()}; the play stopped after {n_played} of {len(pulses)} "
-            f"onsets (the {len(played)} onsets the device reported are kept with the error"
-            f"{lost}){then}", report)
+            f"onsets ({kept}){then}", report)
 
     def _fetch_missing(self, link: Link, st: _PlayState, *, played_only: bool = False) -> None:
         """Ask again for onsets whose ONSET events were lost (counted, never guessed).
@@ -697,15 +707,36 @@ class SerialDevice(DeviceBase):
         first_t_us: int | None = None
         poll = self._check_stop if self._should_stop is not None else None
         t0 = self.clock.now() + 0.002
+        cols = self.profile.cols
         try:
             for t_ms, changes, starting in groups:
                 target = t0 + t_ms / 1000.0
                 self._next_send_at = target
                 wait_until(target, self.clock, link, poll=poll)
                 applied = None
+                changed: set[int] = set()
                 for msg in self._frames(state, changes):
-                    ack = link.expect(msg, Ack)
+                    try:
+                        ack = link.expect(msg, Ack)
+                    except DeviceRefused as e:
+                        if e.nak.reason != NakReason.NO_SESSION or (
+                                first_t_us is None and applied is None):
+                            raise           # nothing played yet: it may be played anew
+                        # The watchdog stopped the play between frames: never played twice.
+                        self._session_ended = "NO_SESSION"
+                        for i in starting:
+                            if pulses[i].row * cols + pulses[i].col in changed:
+                                onsets[i] = applied
+                        start = first_t_us if first_t_us is not None else \
+                            applied - round(t_ms * 1000)
+                        alarm = next((a.t_us for a in reversed(self.alarms)
+                                      if a.code == wire.AlarmCode.WATCHDOG and a.t_us >= start),
+                                     None)
+                        raise self._stopped(pulses, onsets, start, schedule,
+                                            alarm) from None
                     applied = ack.t_us if applied is None else applied
+                    changed.update(range(len(state)) if isinstance(msg, SetFrameFull)
+                                   else (i for i, _ in msg.changes))
                 for i, s in changes:
                     state[i] = s
                 # The play's start on the device clock: the instant that came least late
