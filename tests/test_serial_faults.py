@@ -554,3 +554,25 @@ def test_a_host_timed_play_the_watchdog_stopped_is_not_played_again(emu, clock):
         assert (p.row, p.col) == (0, 0) and not exc.value.report.completed
         assert exc.value.report.started_at_ms + p.onset_ms == rose[0].t_us / 1000
         dev.play(sweep(2))                   # a new session: the next play plays
+
+
+def test_a_device_with_frames_over_4096_bytes_is_heard(clock):
+    """A device that takes payloads of 8,000 bytes sends frames as long (docs/protocol.md,
+    "The largest frame a host must accept"): its ONSETS_REPLY to a request for 622 lost
+    onsets is 4,988 bytes, over the reader's 4,096 before the handshake, and is heard."""
+    emu = LoopbackEmulator.for_profile(VEST, clock=clock, max_payload=8000)
+    s = Schedule(device="vest_6x8", pulses=[
+        Pulse(row=(i % 48) // 6, col=i % 6, onset_ms=2 * i, duration_ms=1, level=1)
+        for i in range(700)])
+    with emu:
+        dev = SerialDevice(VEST, emu.port, clock=clock)
+        with dev:
+            dev.open()
+            hear = dev._link.on_event
+            dev._link.on_event = lambda m: None if isinstance(m, Onset) else hear(m)
+            rep = dev.play(s)
+            assert dev.recovered["onsets_fetched"] == 700
+            assert dev._link.stats.rx_bad == {}
+    played = [a.t_us for a in emu.actuations() if not a.setting.is_off]
+    assert [round(rep.started_at_ms + p.onset_ms, 3) for p in rep.pulses] == \
+        [round(t / 1000, 3) for t in played]

@@ -214,7 +214,8 @@ class Link:
         reader already takes (docs/protocol.md, "The largest frame a host must accept")."""
         need = max_payload + wire.MIN_FRAME
         if need > self._reader.max_frame:
-            self._reader = wire.FrameReader(max_frame=need)
+            # in place: the reader thread may be in the middle of the next frame
+            self._reader.accept(need)
 
     # -- state ------------------------------------------------------------------------------
     @property
