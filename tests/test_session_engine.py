@@ -499,3 +499,34 @@ def test_a_link_lost_while_the_onsets_are_asked_for_keeps_those_heard(tmp_path,
     logged = _logged(paths, 2)
     assert 0 < len(logged[0]) and logged[0] == sorted(rose[1])
     assert logged[1] == sorted(rose[2])
+
+
+def test_a_retried_trial_aborted_after_the_fault_keeps_the_stopped_play(tmp_path,
+                                                                         emulated_vest):
+    """The experimenter retries trial 2 after the device stopped its play, then Escape
+    ends the session at its question: the trial is logged device_error with both plays
+    (the stopped one and the one played again), and a resume goes on after it."""
+    from vtexp.errors import SessionAborted
+
+    emu, dev = emulated_vest
+    stall = StallDuring(dev, trial=2)
+    lx = load_experiment(write_experiment(tmp_path, MINIMAL))
+    scripted = make_responder("scripted:correct", "01", 1, lx)
+
+    class EscapeAtTrial2:
+        description = "escape at trial 2"
+
+        def ask(self, q, trial, replay):
+            if trial.number == 2:
+                raise SessionAborted("the experimenter pressed Escape")
+            return scripted.ask(q, trial, replay)
+    with pytest.raises(SessionAborted):
+        _session(tmp_path, [stall], device=dev, responder=EscapeAtTrial2(),
+                 on_device_error=lambda e, t: "retry")
+    paths = SessionPaths.of(tmp_path / "data", "mini", "mini", "01", 1)
+    rose = list(_rose(emu).values())
+    assert _logged(paths, 2) == {0: sorted(rose[1]), 1: sorted(rose[2])}
+    beh = pd.read_csv(paths.beh_tsv, sep="\t")
+    assert list(beh["status"]) == ["ok", "device_error"]
+    res = _session(tmp_path, device=dev, resume=True)
+    assert res.status == "completed" and [r.trial for r in res.records] == [3, 4]

@@ -191,33 +191,45 @@ class Engine:
         """A trial, with the experimenter's choice when the device fails during it.
 
         Every play the device reported is logged with the trial, a retry's included: one
-        it stopped part-way (:class:`~vtexp.errors.PlayInterrupted`) with
-        the pulses it did play, in order (``play`` 0, 1, ... over the trial's attempts).
-        A trial skipped after a fault, or whose plays the device reported before the
-        session was aborted, is logged with status ``device_error``; a resume goes on
-        after it."""
+        it stopped part-way (:class:`~vtexp.errors.PlayInterrupted`) with the pulses it
+        did play, in order (``play`` 0, 1, ... over the trial's attempts). A trial skipped
+        after a fault is logged with status ``device_error``; so is one that had a fault
+        and plays and then ended the session (an abort after the fault, Escape or an error
+        in a retry), with those plays, rather than leave them out of the log; a resume goes
+        on after such a trial."""
         wall = self.clock.wall()
         plays: list[PlayReport] = []
+        faulted = False
         while True:
             started_at = iso(self.clock)
             self.emit(TrialStarted(trial, started_at, self.clock.now_ms()))
             try:
                 rows = self._play_and_ask(trial, started_at, plays)
             except DeviceError as e:
+                faulted = True
                 try:
                     choice = self.device_fault(e, trial)
-                except DeviceError:
-                    if plays:               # felt, so logged before the session ends
-                        self._done(trial, self._device_error_rows(trial, started_at), plays,
-                                   total, wall)
+                except BaseException:
+                    self._cut_short(trial, started_at, plays, total, wall)
                     raise
                 if choice == "retry":
                     continue
                 rows = self._device_error_rows(trial, started_at)
+            except BaseException:
+                if faulted:
+                    self._cut_short(trial, started_at, plays, total, wall)
+                raise
             return self._done(trial, rows, plays, total, wall)
 
     def _device_error_rows(self, trial: Trial, started_at: str) -> tuple[TrialRecord, ...]:
         return trial_rows(trial, self.questions, started_at, status="device_error")
+
+    def _cut_short(self, trial: Trial, started_at: str, plays: list[PlayReport], total: int,
+                   wall: float) -> None:
+        """A trial that had a device fault ends the session: logged ``device_error`` with
+        the plays the device reported, if any (felt, so never left out of the log)."""
+        if plays:
+            self._done(trial, self._device_error_rows(trial, started_at), plays, total, wall)
 
     def device_fault(self, error: DeviceError, trial: Trial) -> str:
         """Every actuator is already off; the session pauses on the experimenter's choice:
