@@ -1,9 +1,10 @@
 """``vtexp device conform``: a third party's check of a firmware against wire protocol v1.
 
 It passes against vtexp's emulator over a real pty, against the C firmware's host
-build and against its ATmega2560 build in simavr (each with its own vector runner), fails a device that answers one rule
-otherwise (naming the row), and says in one line that a port where nothing answers has
-no device on it.
+build and against its ATmega2560 build in simavr (each with its own vector runner),
+fails a device that answers one rule otherwise (naming the row), and says in one line
+that a port where nothing answers has no device on it, or that a vector runner's port
+does not open.
 """
 
 from __future__ import annotations
