@@ -108,3 +108,28 @@ def test_a_vector_runner_port_that_does_not_open_is_named():
                                           "'/dev/vtexp-no-such-port'"):
         with conform.vector_runner("serial:/dev/vtexp-no-such-port"):
             pass
+
+
+class _PreviousEdition(Firmware):
+    """A device of the previous edition: GET_ONSETS only within a session."""
+
+    def _get_onsets(self, seq, msg):
+        if not self.session:
+            return self._nak(seq, wire.NakReason.NO_SESSION)
+        return super()._get_onsets(seq, msg)
+
+
+def test_a_device_of_the_previous_edition_fails_the_onsets_row_only():
+    import serial
+
+    emu = PtyEmulator.for_profile(VEST)
+    emu.line.firmware = _PreviousEdition(emu.config, emu.line.clock_us)
+    with emu:
+        port = serial.serial_for_url(emu.port, baudrate=1_000_000, timeout=0.01)
+        try:
+            rows = list(conform.check_rules(port, emu.port))
+        finally:
+            port.close()
+    [(name, detail)] = _failed(rows)
+    assert name == "onsets_after_a_watchdog_trip"
+    assert "answered Nak" in detail and "NO_SESSION" in detail and "cannot be recovered" in detail
