@@ -71,7 +71,7 @@ CYC_US = fwtrace.HZ / 1e6
 #: second behind, which the default 200 ms heartbeat takes for a pulled cable. Onsets are
 #: played from the device's clock, so this changes nothing that is measured; part 5
 #: measures the heartbeat itself.
-SIM_LINK = ",heartbeat_ms=1000,reply_ms=250"
+SIM_LINK = ",heartbeat_ms=1000,reply_ms=120"
 
 
 def sweep(n: int, soa_ms: float, first: int = 0) -> list[Pulse]:

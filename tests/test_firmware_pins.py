@@ -26,6 +26,7 @@ import serial
 
 from vtexp.devices import fwtrace, open_device, wire
 from vtexp.devices.cfirmware import AvrSimulator
+from vtexp.devices.link import suggested_reply_ms
 from vtexp.errors import DeviceError
 from vtexp.model import DeviceProfile, Pulse, PulseTrain, Schedule
 
@@ -42,9 +43,10 @@ pytestmark = pytest.mark.realtime
 def link(sim: AvrSimulator, heartbeat_ms: int = 1000) -> str:
     """The simulator's port as ``vtexp device emulate --firmware avr`` suggests it: on a
     loaded 2-core machine the simulated chip can fall a tenth of a second behind the wall
-    clock, which a 200 ms heartbeat would take for a pulled cable and a 25 ms reply wait
-    for a lost frame (the watchdog tests use their own)."""
-    return f"serial:{sim.port},heartbeat_ms={heartbeat_ms},reply_ms=250"
+    clock, which a 200 ms heartbeat would take for a pulled cable (the watchdog tests use
+    their own); the reply wait fits five attempts of a request in the silence limit."""
+    reply_ms = suggested_reply_ms(heartbeat_ms)
+    return f"serial:{sim.port},heartbeat_ms={heartbeat_ms},reply_ms={reply_ms}"
 
 
 def trace_of(sim: AvrSimulator) -> fwtrace.Trace:

@@ -63,7 +63,7 @@ def session(tmp_path_factory):
         # the simulated chip runs on while a loaded machine keeps the host's threads
         # waiting; the host's time is the chip's)
         port = hint.split("--device ")[1].split()[0]
-        assert ",heartbeat_ms=1000,reply_ms=250,lockstep=" in port, hint
+        assert ",heartbeat_ms=1000,reply_ms=120,lockstep=" in port, hint
 
         run = subprocess.run(
             [sys.executable, "-m", "vtexp", "run", str(STUDY), "--participant", "01",

@@ -23,11 +23,11 @@ from pathlib import Path
 import pytest
 
 from vtexp.clock import VirtualClock
-from vtexp.devices import open_device
+from vtexp.devices import open_device, wire
 from vtexp.devices.emulator import Faults, LoopbackEmulator, PtyEmulator
 from vtexp.devices.link import DeviceLost
 from vtexp.devices.serial_device import SerialDevice, setting_of
-from vtexp.devices.wire import Onset
+from vtexp.devices.wire import Level, Onset, Status
 from vtexp.errors import DeviceError
 from vtexp.model import DeviceProfile, Pulse, PulseTrain, Schedule
 
@@ -466,3 +466,113 @@ def test_a_wrong_link_setting_is_named(spec, says):
     from vtexp.errors import InputError
     with pytest.raises(InputError, match=says):
         open_device(spec, VEST)
+
+
+def test_a_play_the_watchdog_stopped_keeps_the_onsets_it_played(emu, clock):
+    """The host fell silent in the middle of a play (its heartbeats held back): the
+    device's watchdog stopped the play and ended the session. The onsets of the pulses
+    it played are not lost: the host asks for them with GET_ONSETS (served without a
+    session) before its next HELLO forgets them, and the error carries them."""
+    from vtexp.errors import PlayInterrupted
+
+    s = Schedule(device="vest_6x8", pulses=[
+        Pulse(row=0, col=0, onset_ms=0, duration_ms=100, level=1),
+        Pulse(row=1, col=1, onset_ms=50, duration_ms=900, level=2),
+        Pulse(row=2, col=2, onset_ms=800, duration_ms=100, level=1)])
+    dev = SerialDevice(VEST, emu.port, clock=clock)
+    with dev:
+        dev.open()
+        dev._link.may_heartbeat = lambda now: False
+        with pytest.raises(PlayInterrupted) as exc:
+            dev.play(s)
+        played = exc.value.report
+        assert played.completed is False
+        assert [(p.row, p.col) for p in played.pulses] == [(0, 0), (1, 1)]
+        assert played.pulses[1].onset_ms - played.pulses[0].onset_ms == pytest.approx(50, abs=1)
+        # the second pulse was cut short by the trip: it lasted until the device stopped
+        assert played.pulses[0].duration_ms == 100
+        assert played.pulses[1].duration_ms == pytest.approx(played.duration_ms - 50, abs=1)
+        assert played.duration_ms < 800
+        assert "the play stopped after 2 of 3 onsets" in str(exc.value)
+        assert emu.firmware.counters.watchdog_trips == 1
+        dev._link.may_heartbeat = dev._may_heartbeat
+        dev.play(sweep(2))                   # a new session: the next play plays
+
+
+@pytest.mark.parametrize("heartbeat_ms, reply_ms, survives", [
+    (200, 25, True),                 # the defaults
+    (1000, 120, True),               # the simulated chip's, as 'device emulate' suggests
+    (1000, 250, False),              # its earlier suggestion: three attempts fit
+], ids=["defaults", "avr-suggested", "avr-before"])
+def test_four_replies_lost_in_a_row_do_not_lose_the_device(clock, heartbeat_ms, reply_ms,
+                                                           survives):
+    """Every reply of a request lost four times in a row (a noisy line): the fifth attempt
+    is answered within the silence limit with the defaults and with the settings suggested
+    for the simulated chip, which 'vtexp device emulate --firmware avr' prints."""
+    from vtexp.devices.link import suggested_reply_ms
+
+    if survives and heartbeat_ms != 200:
+        assert suggested_reply_ms(heartbeat_ms) == reply_ms
+    emu = LoopbackEmulator.for_profile(VEST, clock=clock)
+    with emu:
+        dev = SerialDevice(VEST, emu.port, heartbeat_ms=heartbeat_ms, reply_timeout_ms=reply_ms,
+                           clock=clock)
+        with dev:
+            dev.open()
+            link = dev._link
+            wait_s = link.reply_timeout_for(len(wire.encode(Status(), 0)))
+            emu.faults = Faults(drop_rate=1.0, direction="to_host")
+            clock.call_later(3.5 * wait_s, lambda: setattr(emu, "faults", Faults()))
+            if survives:
+                dev.status()
+                assert link.stats.timeouts == 4
+            else:
+                with pytest.raises(DeviceLost):
+                    dev.status()
+
+
+def test_a_host_timed_play_the_watchdog_stopped_is_not_played_again(emu, clock):
+    """Host-streamed timing: the host stalls between two instants (no frame, no heartbeat)
+    and the device's watchdog ends the session. The next frame is refused NO_SESSION;
+    the play is not started again from its beginning (a pulse felt twice), and the error
+    carries the onset the device acknowledged, as the emulated device's record says."""
+    from vtexp.errors import PlayInterrupted
+
+    s = Schedule(device="vest_6x8", pulses=[
+        Pulse(row=0, col=0, onset_ms=0, duration_ms=50, level=1),
+        Pulse(row=1, col=1, onset_ms=400, duration_ms=50, level=2)])
+    dev = SerialDevice(VEST, emu.port, timing="host", clock=clock)
+    with dev:
+        dev.open()
+        dev._link.may_heartbeat = lambda now: False
+        with pytest.raises(PlayInterrupted, match="stopped after 1 of 2 onsets") as exc:
+            dev.play(s)
+        dev._link.may_heartbeat = dev._may_heartbeat
+        rose = [a for a in emu.actuations() if not a.setting.is_off]
+        assert [(a.index, a.setting) for a in rose] == [(0, Level(1))]    # once
+        [p] = exc.value.report.pulses
+        assert (p.row, p.col) == (0, 0) and not exc.value.report.completed
+        assert exc.value.report.started_at_ms + p.onset_ms == rose[0].t_us / 1000
+        dev.play(sweep(2))                   # a new session: the next play plays
+
+
+def test_a_device_with_frames_over_4096_bytes_is_heard(clock):
+    """A device that takes payloads of 8,000 bytes sends frames as long (docs/protocol.md,
+    "The largest frame a host must accept"): its ONSETS_REPLY to a request for 622 lost
+    onsets is 4,988 bytes, over the reader's 4,096 before the handshake, and is heard."""
+    emu = LoopbackEmulator.for_profile(VEST, clock=clock, max_payload=8000)
+    s = Schedule(device="vest_6x8", pulses=[
+        Pulse(row=(i % 48) // 6, col=i % 6, onset_ms=2 * i, duration_ms=1, level=1)
+        for i in range(700)])
+    with emu:
+        dev = SerialDevice(VEST, emu.port, clock=clock)
+        with dev:
+            dev.open()
+            hear = dev._link.on_event
+            dev._link.on_event = lambda m: None if isinstance(m, Onset) else hear(m)
+            rep = dev.play(s)
+            assert dev.recovered["onsets_fetched"] == 700
+            assert dev._link.stats.rx_bad == {}
+    played = [a.t_us for a in emu.actuations() if not a.setting.is_off]
+    assert [round(rep.started_at_ms + p.onset_ms, 3) for p in rep.pulses] == \
+        [round(t / 1000, 3) for t in played]

@@ -13,7 +13,8 @@ from conftest import MINIMAL, ROOT, write_experiment
 from vtexp.compile import compile_conditions
 from vtexp.design import trial_list
 from vtexp.devices.sim import SimDevice
-from vtexp.errors import DeviceError, InputError, SessionError
+from vtexp.devices.wire import Onset
+from vtexp.errors import DeviceError, InputError, PlayInterrupted, SessionError
 from vtexp.experiment import load_experiment
 from vtexp.model import DeviceProfile
 from vtexp.responders import Response, ScriptedResponder, make_responder
@@ -314,3 +315,218 @@ def test_the_command_line_refuses_a_responder_that_cannot_answer_before_anything
     assert "To continue" not in r.stderr + r.stdout and "--resume" not in r.stderr
     assert "device check" not in r.stdout                   # the device was not opened
     assert not data.exists()                                # no folder, no participants.tsv
+
+
+# ------------------------------------------------------------- a play the device stopped
+
+class StallDuring:
+    """A consumer that makes the host stall in trial ``trial``'s first play: from its
+    PlayStarted the link sends no heartbeat, so the device's watchdog stops the play and
+    ends the session; heartbeats go again when the session pauses. ``lose_onsets``: the
+    ONSET events of that play after its first are lost on the line."""
+
+    def __init__(self, dev, trial: int, lose_onsets: bool = False):
+        self.dev, self.trial, self.lose_onsets = dev, trial, lose_onsets
+        self.stalled = False
+        self.lost: list = []
+
+    def __call__(self, record):
+        link = self.dev._link
+        if isinstance(record, PlayStarted) and record.trial.number == self.trial \
+                and not self.stalled:
+            self.stalled = True
+            link.may_heartbeat = lambda now: False
+            if self.lose_onsets:
+                hear = link.on_event
+
+                def lossy(msg):
+                    if isinstance(msg, Onset) and msg.first > 0:
+                        self.lost.append(msg)
+                    else:
+                        hear(msg)
+                link.on_event = lossy
+        elif isinstance(record, DevicePaused) and link is not None:
+            link.may_heartbeat = self.dev._may_heartbeat
+            link.on_event = self.dev._on_event
+
+
+def _rose(emu, cols: int = 6) -> dict[int, list[tuple[int, int, float]]]:
+    """The pulses the emulated device's record says rose, by play: (row, col, device ms)."""
+    out: dict[int, list] = {}
+    for a in emu.actuations():
+        if a.cause == "play" and not a.setting.is_off:
+            out.setdefault(a.play_id, []).append((a.index // cols, a.index % cols,
+                                                  round(a.t_us / 1000, 3)))
+    return out
+
+
+def _logged(paths, trial: int) -> dict[int, list[tuple[int, int, float]]]:
+    """The device events the session logged for ``trial``, by play: (row, col, device ms)."""
+    ev = pd.read_csv(paths.events_tsv, sep="\t")
+    out: dict[int, list] = {}
+    for r in ev[ev["trial"] == trial].itertuples():
+        out.setdefault(int(r.play), []).append((int(r.row), int(r.col), round(r.onset_ms, 3)))
+    return {k: sorted(v) for k, v in out.items()}
+
+
+@pytest.fixture
+def emulated_vest():
+    """The emulated vest in-process on a virtual clock, kept across the device's reopening,
+    and the device on it."""
+    from vtexp.clock import VirtualClock
+    from vtexp.devices.emulator import LoopbackEmulator
+    from vtexp.devices.serial_device import SerialDevice
+
+    clock = VirtualClock()
+    profile = DeviceProfile.load("vest_6x8")
+    emu = LoopbackEmulator.for_profile(profile, clock=clock)
+    emu.start()
+    yield emu, SerialDevice(profile, emu.port, clock=clock)
+    emu.stop()
+
+
+@pytest.mark.parametrize("choice", ["skip", "retry", "abort"])
+def test_a_play_the_watchdog_stopped_is_logged_as_far_as_it_played(tmp_path, emulated_vest,
+                                                                   choice):
+    """The host stalls in trial 2's play and the device's watchdog stops it part-way. The
+    trial's logged events are the pulses the emulated device's record says rose, no
+    more, no fewer, then the fault policy goes on: a skipped trial is logged
+    device_error, a retried one plays again after them (play 1), an aborted session
+    logs the trial device_error and a resume goes on after it."""
+    emu, dev = emulated_vest
+    stall = StallDuring(dev, trial=2)
+    asked = []
+
+    def experimenter(error, trial):
+        asked.append((error, trial))
+        return choice
+    run = lambda: _session(tmp_path, [stall], device=dev,  # noqa: E731
+                           on_device_error=experimenter)
+    if choice == "abort":
+        with pytest.raises(PlayInterrupted):
+            run()
+    else:
+        assert run().status == "completed"
+    [(error, trial)] = asked
+    assert isinstance(error, PlayInterrupted) and emu.firmware.counters.watchdog_trips == 1
+    paths = SessionPaths.of(tmp_path / "data", "mini", "mini", "01", 1)
+    rose = list(_rose(emu).values())            # one entry per play, in the order played
+    scheduled = len(trial.condition.schedule.pulses)
+    interrupted = sorted(rose[1])
+    assert 0 < len(interrupted) < scheduled      # stopped part-way: the test means something
+    logged = _logged(paths, 2)
+    assert logged[0] == interrupted              # no more, no fewer, at the device's times
+    assert [p.row * 6 + p.col for p in error.report.pulses] == \
+        [r * 6 + c for r, c, _ in sorted(rose[1], key=lambda x: x[2])]
+    beh = pd.read_csv(paths.beh_tsv, sep="\t")
+    status = dict(zip(beh["trial"], beh["status"]))
+    if choice == "retry":
+        assert logged[1] == sorted(rose[2]) and len(logged[1]) == scheduled
+        assert status == {1: "ok", 2: "ok", 3: "ok", 4: "ok"}
+        row = beh[beh["trial"] == 2].iloc[0]
+        assert row["stimulus_onset_ms"] == pytest.approx(min(t for _, _, t in rose[2]), abs=1)
+    else:
+        assert set(logged) == {0}
+        assert status[2] == "device_error"
+    if choice == "skip":
+        assert status == {1: "ok", 2: "device_error", 3: "ok", 4: "ok"}
+    if choice == "abort":
+        assert status == {1: "ok", 2: "device_error"}
+        meta = json.loads(paths.session_json.read_text())
+        assert meta["status"] == "failed" and "watchdog" in meta["reason"]
+        res = _session(tmp_path, device=dev, resume=True)
+        assert res.status == "completed" and [r.trial for r in res.records] == [3, 4]
+        assert _logged(paths, 2) == logged      # the resume kept them
+
+
+def test_a_device_of_the_previous_edition_keeps_only_the_onsets_heard(tmp_path,
+                                                                      emulated_vest):
+    """A device of the previous edition answers GET_ONSETS without a session with
+    NO_SESSION: of the interrupted play, the session logs the onsets whose ONSET events
+    it heard and no other (it never guesses one)."""
+    from vtexp.devices.wire import NakReason
+
+    emu, dev = emulated_vest
+    fw = emu.firmware
+    serve = fw._get_onsets
+
+    def previous_edition(seq, msg):
+        return serve(seq, msg) if fw.session else fw._nak(seq, NakReason.NO_SESSION)
+    fw._get_onsets = previous_edition
+    stall = StallDuring(dev, trial=2, lose_onsets=True)
+    asked = []
+    res = _session(tmp_path, [stall], device=dev,
+                   on_device_error=lambda e, t: asked.append(e) or "skip")
+    assert res.status == "completed"
+    paths = SessionPaths.of(tmp_path / "data", "mini", "mini", "01", 1)
+    rose = sorted(list(_rose(emu).values())[1])
+    lost = {(o.first, o.t_us) for o in stall.lost}
+    assert lost and len(stall.lost) < len(rose)       # some heard, some lost
+    heard = sorted(x for x in rose if not any(round(t / 1000, 3) == x[2] for _, t in lost))
+    assert _logged(paths, 2) == {0: heard}
+    assert "are not known" in str(asked[0]) and "previous edition" in str(asked[0])
+
+
+def test_a_link_lost_while_the_onsets_are_asked_for_keeps_those_heard(tmp_path,
+                                                                       emulated_vest):
+    """The line fails just as the host asks for the stopped play's onsets: the error is
+    still the interrupted play (saying that contact was then lost), the onsets heard are
+    logged, and the retried trial plays on the reconnected device."""
+    from vtexp.devices.emulator import Faults
+
+    emu, dev = emulated_vest
+    fw = emu.firmware
+    serve = fw._get_onsets
+
+    def line_fails(seq, msg):
+        if not fw.session:
+            emu.faults = Faults(drop_rate=1.0, direction="to_host")
+        return serve(seq, msg)
+    fw._get_onsets = line_fails
+    stall = StallDuring(dev, trial=2)
+    asked = []
+
+    def experimenter(error, trial):
+        asked.append(error)
+        emu.faults = Faults()                       # the cable is back
+        return "retry"
+    res = _session(tmp_path, [stall], device=dev, on_device_error=experimenter)
+    assert res.status == "completed" and [r.status for r in res.records] == ["ok"] * 4
+    [error] = asked
+    assert isinstance(error, PlayInterrupted) and "contact with it was lost" in str(error)
+    paths = SessionPaths.of(tmp_path / "data", "mini", "mini", "01", 1)
+    rose = list(_rose(emu).values())
+    logged = _logged(paths, 2)
+    assert 0 < len(logged[0]) and logged[0] == sorted(rose[1])
+    assert logged[1] == sorted(rose[2])
+
+
+def test_a_retried_trial_aborted_after_the_fault_keeps_the_stopped_play(tmp_path,
+                                                                         emulated_vest):
+    """The experimenter retries trial 2 after the device stopped its play, then Escape
+    ends the session at its question: the trial is logged device_error with both plays
+    (the stopped one and the one played again), and a resume goes on after it."""
+    from vtexp.errors import SessionAborted
+
+    emu, dev = emulated_vest
+    stall = StallDuring(dev, trial=2)
+    lx = load_experiment(write_experiment(tmp_path, MINIMAL))
+    scripted = make_responder("scripted:correct", "01", 1, lx)
+
+    class EscapeAtTrial2:
+        description = "escape at trial 2"
+
+        def ask(self, q, trial, replay):
+            if trial.number == 2:
+                raise SessionAborted("the experimenter pressed Escape")
+            return scripted.ask(q, trial, replay)
+    with pytest.raises(SessionAborted):
+        _session(tmp_path, [stall], device=dev, responder=EscapeAtTrial2(),
+                 on_device_error=lambda e, t: "retry")
+    paths = SessionPaths.of(tmp_path / "data", "mini", "mini", "01", 1)
+    rose = list(_rose(emu).values())
+    assert _logged(paths, 2) == {0: sorted(rose[1]), 1: sorted(rose[2])}
+    beh = pd.read_csv(paths.beh_tsv, sep="\t")
+    assert list(beh["status"]) == ["ok", "device_error"]
+    res = _session(tmp_path, device=dev, resume=True)
+    assert res.status == "completed" and [r.trial for r in res.records] == [3, 4]

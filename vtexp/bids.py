@@ -342,7 +342,9 @@ EVENTS_SIDECAR = {
     "trial": {"Description": "trial number in the session (the row of _beh.tsv with the "
                              "same trial)"},
     "play": {"Description": "which play of the trial's stimulus: 0 the first, 1 the first "
-                            "replay (feel it again), ..."},
+                            "replay (feel it again), ...; a play the device stopped part-way "
+                            "(a device fault) lists the pulses it played, and the plays of "
+                            "the trial played again after it follow with the next numbers"},
     "row": {"Description": "actuator row on the array, from 0 at the top"},
     "col": {"Description": "actuator column on the array, from 0 at the left"},
     "scheduled_onset_ms": {"Description": "onset the schedule asked for, from the start of "

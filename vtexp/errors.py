@@ -73,6 +73,22 @@ class DeviceError(VtexpError):
     exit_code = 3
 
 
+class PlayInterrupted(DeviceError):
+    """The device stopped a play part-way (its watchdog fired): every actuator is off.
+
+    Attributes
+    ----------
+    report:
+        The :class:`~vtexp.model.PlayReport` of the pulses it did play, each with its
+        device-reported onset (``completed`` false); the session logs them as it logs a
+        completed play's.
+    """
+
+    def __init__(self, message: str, report):
+        super().__init__(message)
+        self.report = report
+
+
 class SessionError(VtexpError):
     """A session cannot start or continue (existing data, unwritable disk...)."""
 

@@ -749,6 +749,9 @@ static void execute(uint8_t seq, uint8_t type, const uint8_t *p, uint16_t plen)
     case VT_STATUS:
         do_status(seq);
         return;
+    case VT_GET_ONSETS:                       /* read-only: after a watchdog trip the host */
+        do_get_onsets(seq, p);                /* recovers the play's onsets before HELLO */
+        return;
     }
     if (!S.session) {
         send_nak(seq, VT_NAK_NO_SESSION, 0);
@@ -770,9 +773,6 @@ static void execute(uint8_t seq, uint8_t type, const uint8_t *p, uint16_t plen)
         break;
     case VT_TRIGGER:
         do_trigger(seq, p);
-        break;
-    case VT_GET_ONSETS:
-        do_get_onsets(seq, p);
         break;
     }
 }

@@ -433,6 +433,146 @@ def conversations() -> list[dict]:
     ], "a train is within the hardware if amplitude, frequency and width are within the "
        "ceilings, frequency and width are not 0, and a pulse is shorter than its period "
        "(width_us * frequency_chz < 10^8); amplitude 0 is off, whatever the rest")
+
+    # -- Added with the edition that settles the 13 points a second author still had to
+    # guess (docs/protocol.md, "Changes in this edition"). Nothing above changes.
+    v2_bad_crc = bytearray(raw_frame(2, Heartbeat.TYPE, 3))
+    v2_bad_crc[-2] ^= 0x01 if v2_bad_crc[-2] != 0x01 else 0x03
+    run("checks_of_a_frame_in_order", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (2000, bytes(v2_bad_crc)),                                  # CRC before version
+        (3000, raw_frame(2, 0x7E, 4)),                              # version before type
+        (4000, raw_frame(1, 0x7E, 5, bytes([1]))),                  # type before payload
+        (5000, raw_frame(1, SetFrame.TYPE, 6, bytes([3, 1, 0, 0, 0, 1]))),  # unknown drive
+        (6000, e(Status(), 7)),
+    ], "a frame's checks run in this order, the first failure answering: COBS and length, "
+       "CRC, version, type, payload form. A version-2 frame with a bad CRC is BAD_FRAME; "
+       "with a good CRC, BAD_VERSION")
+    run("a_refused_request_is_answered_from_the_cache", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (2000, e(SetFrame(1, ((48, Level(1)),)), 1)),               # OUT_OF_RANGE
+        (3000, b"\x00\x13\x37\xaa\x00"),                           # an unreadable frame
+        (4000, e(SetFrame(1, ((48, Level(1)),)), 1)),               # retry: the same NAK
+        (5000, e(Status(), 2)),
+    ], "a refused valid request's NAK is its reply: it enters the reply cache, and a retry "
+       "hears it again from the cache (counted in duplicates). A NAK to an unreadable frame "
+       "is not a reply and leaves the cache as it was")
+    busy_one = [WirePulse(0, 0, 50_000, Level(1))]
+    run("checks_of_set_frame_and_upload_begin_in_order", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(1, busy_one, 1))],
+        (3000, e(Trigger(1, 0), 3)),
+        (4000, e(SetFrame(2, ((99, Train(9999, 1, 1)),)), 4)),     # BUSY before all else
+        (5000, e(UploadBegin(2, 5000, 2), 5)),                      # BUSY before all else
+        (53_000, None),
+        (54_000, e(SetFrame(2, ((99, Train(9999, 1, 1)),)), 6)),   # WRONG_DRIVE before range
+        (55_000, e(SetFrameFull(2, tuple(Train(0, 0, 0) for _ in range(47))), 7)),
+        (56_000, e(SetFrameFull(1, tuple(Level(3) for _ in range(47))), 8)),  # count, range
+        (57_000, e(UploadBegin(2, 5000, 2), 9)),                    # WRONG_DRIVE before size
+        (58_000, e(UploadBegin(2, 1, 3), 10)),                      # drive kind 3
+        (59_000, e(UploadBegin(2, 1, 0), 11)),                      # drive kind 0
+        (60_000, e(Status(), 12)),
+    ], "SET_FRAME and SET_FRAME_FULL are checked BUSY, WRONG_DRIVE, the count of a full "
+       "frame (BAD_PAYLOAD, detail = actuators), then each change (OUT_OF_RANGE); "
+       "UPLOAD_BEGIN is checked BUSY, WRONG_DRIVE, TOO_LARGE. UPLOAD_BEGIN's payload has one "
+       "length whatever its drive, so an unknown drive kind there (0, 3) is WRONG_DRIVE, a "
+       "refused valid request")
+    run("a_request_at_exactly_watchdog_ms_is_in_time", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (201_000, e(Heartbeat(), 1)),                               # exactly 200 ms: in time
+        (401_000, None),                                            # exactly 200 ms: no trip
+        (401_001, None),                                            # more than 200 ms: trips
+    ], "the watchdog trips when more than watchdog_ms has passed since the last valid "
+       "request; a request after exactly watchdog_ms of silence is in time")
+    run("a_full_frame_of_the_wrong_count_is_a_valid_request", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        (150_000, e(SetFrameFull(1, tuple(Level(0) for _ in range(47))), 1)),
+        (350_000, None),                                            # fed at 150000: no trip
+        (350_001, None),
+        (351_000, e(Status(), 2)),
+    ], "a SET_FRAME_FULL whose settings are whole but not one per actuator is a refused "
+       "valid request (BAD_PAYLOAD, detail = actuators): counted in rx_frames, it feeds the "
+       "watchdog and its NAK is cached")
+    run("a_refused_hello_changes_nothing", vest, [
+        (1000, e(Hello(0, 200, 200), 0)),                           # no session opened
+        (2000, e(Heartbeat(), 1)),
+        (3000, e(Hello(1, 200, 200), 2)),
+        *[(4000 + k, f) for k, f in enumerate(upload(1, busy_one, 3))],
+        (5000, e(Trigger(1, 0), 5)),
+        (6000, e(Hello(0, 500, 500), 6)),                           # the play goes on
+        (7000, e(Status(), 7)),
+        (55_000, None),                                             # and finishes
+        (56_000, e(Heartbeat(), 8)),
+    ], "a HELLO refused UNSUPPORTED_PROTOCOL (protocol 0) changes nothing: no session is "
+       "opened or ended, no play stops, no output changes, the periods stay; as a valid "
+       "request it feeds the watchdog of a session in progress")
+    two_more = [WirePulse(1, 0, 1000, Level(1)), WirePulse(2, 1000, 1000, Level(1))]
+    run("a_refused_upload_begin_keeps_the_schedule", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(1, busy_one, 1))],
+        (3000, e(UploadBegin(2, 5000, 1), 3)),                      # TOO_LARGE
+        (4000, e(UploadBegin(2, 1, 2), 4)),                         # WRONG_DRIVE
+        (5000, e(Trigger(1, 0), 5)),                                # schedule 1 is still there
+        (55_000, None),
+        (56_000, e(UploadBegin(3, 2, 1), 6)),
+        (57_000, e(UploadChunk(3, 0, 1, (two_more[0],)), 7)),
+        (58_000, e(UploadBegin(4, 5000, 1), 8)),                    # refused mid-upload
+        (59_000, e(UploadChunk(3, 1, 1, (two_more[1],)), 9)),       # the upload goes on
+        (60_000, e(Trigger(3, 0), 10)),
+    ], "a refused UPLOAD_BEGIN changes nothing: the loaded schedule stays loaded and an "
+       "upload in progress goes on")
+    run("get_onsets_from_far_past_the_end", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(1, busy_one, 1))],
+        (3000, e(Trigger(1, 0), 3)),
+        (53_000, None),
+        (54_000, e(GetOnsets(1, 1, 5), 4)),                         # first = pulses
+        (55_000, e(GetOnsets(1, 0xFFFF, 0xFFFF), 5)),               # far past
+        (56_000, e(GetOnsets(1, 0, 0), 6)),                         # count 0
+    ], "k = max(0, min(count, pulses - first, (max_payload - 5) / 8)): from first at or "
+       "past the last pulse, and for count 0, an ONSETS_REPLY with no times")
+    mid = [WirePulse(0, 0, 20_000, Level(1)), WirePulse(1, 10_000, 20_000, Level(2))]
+    run("a_frame_and_a_due_instant_in_one_step", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(1, mid, 1))],
+        (3000, e(Trigger(1, 0), 3)),                                # pulse 0 on at 3000
+        (13_000, e(Status(), 4)),                                   # pulse 1 due now: after
+        (14_000, e(GetOnsets(1, 0, 2), 5)),
+        (23_000, e(Trigger(1, 0), 6)),                              # pulse 0 ends now: BUSY
+        (33_000, e(AllOff(), 7)),                                   # pulse 1 ends now: stopped
+        (34_000, e(Status(), 8)),
+    ], "where a frame arrives at the instant something is due, the watchdog is judged "
+       "first, then the frame is handled, then what is due is applied: the reply says the "
+       "state before the instant, the instant's events follow it, and a play the frame "
+       "stops applies nothing more")
+    run("the_watchdog_before_a_frame_and_a_due_instant", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(1, [WirePulse(0, 0, 150_000, Level(1)),
+                                                        WirePulse(1, 150_000, 10_000,
+                                                                  Level(1))], 1))],
+        (4000, e(Trigger(1, 0), 3)),
+        (210_000, e(Heartbeat(), 4)),        # too late: the deadline passed at 204000,
+                                             # before the end and onset due at 154000
+        (211_000, e(Status(), 5)),
+    ], "the watchdog is judged before anything else in a step: a frame that arrives after "
+       "the deadline is too late, and instants due before it but not yet applied are not "
+       "applied: PLAY_DONE reason 2 and ALARM, then the frame's NAK NO_SESSION")
+    run("onsets_after_a_watchdog_trip", vest, [
+        (1000, e(Hello(1, 200, 200), 0)),
+        *[(2000 + k, f) for k, f in enumerate(upload(1, [WirePulse(0, 0, 100_000, Level(1)),
+                                                        WirePulse(1, 300_000, 10_000,
+                                                                  Level(1))], 1))],
+        (4000, e(Trigger(1, 0), 3)),
+        (104_000, None),
+        (204_001, None),                                            # the watchdog trips
+        (210_000, e(Status(), 4)),                                  # no session; play kept
+        (211_000, e(GetOnsets(1, 0, 2), 5)),                        # served without a session
+        (212_000, e(Heartbeat(), 6)),
+        (213_000, e(Hello(1, 200, 200), 7)),
+        (214_000, e(GetOnsets(1, 0, 2), 8)),                        # forgotten with HELLO
+    ], "GET_ONSETS is served without a session, like STATUS: after a watchdog trip the "
+       "host recovers the interrupted play's onsets (never guessed) before its HELLO "
+       "forgets them")
     return out
 
 

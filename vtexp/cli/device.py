@@ -7,7 +7,10 @@
   asking whether it moved (``--yes`` plays them all without asking, for scripts);
 - ``monitor --device serial:PORT``: a tap that decodes and prints the traffic;
 - ``emulate --profile NAME``: an emulated device on a pseudo-terminal, until
-  stopped (Ctrl-C or SIGTERM), optionally with line faults.
+  stopped (Ctrl-C or SIGTERM), optionally with line faults;
+- ``conform --device serial:PORT``: the device's firmware against the protocol's
+  rules and (through its vector runner) every vector, as a pass/fail table
+  (:mod:`vtexp.devices.conform`).
 
 The checks themselves are :mod:`vtexp.devices.check` (``vtexp run`` makes them
 too). Only argparse is imported here; each command imports what it needs, so
@@ -84,6 +87,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--verbose", "-v", action="store_true",
                    help="print every frame received and sent")
     s.set_defaults(func=cmd_emulate)
+
+    s = ds.add_parser("conform", help="check a device's firmware against wire protocol v1 "
+                                      "(every rule, and every vector through its runner)")
+    s.add_argument("--device", required=True,
+                   help="serial:PORT (a device as flashed), or a built-in one: emulator, "
+                        "emulator:host (the C firmware on this computer), emulator:avr "
+                        "(the ATmega2560 build in simavr)")
+    s.add_argument("--vectors", metavar="RUNNER",
+                   help="where the vectors run: serial:PORT of the firmware's vector runner "
+                        "(docs/firmware.md), or python, host, avr; the built-in devices "
+                        "bring their own")
+    s.add_argument("--profile", default="vest_6x8",
+                   help="with a built-in device: the profile it is built to (default "
+                        "vest_6x8)")
+    s.add_argument("--baud", type=int, default=1_000_000,
+                   help="UART baud rate (default 1000000, the reference firmware's)")
+    s.set_defaults(func=cmd_conform)
 
 
 # --------------------------------------------------------------------------- list
@@ -180,6 +200,14 @@ def _check_summary(failed, played, n, dev, unattended: bool) -> int:
 
 # --------------------------------------------------------------------------- monitor
 
+def cmd_conform(args: argparse.Namespace) -> int:
+    from ..devices.conform import conform, table
+
+    rows = conform(args.device, profile=args.profile, vectors=args.vectors, baud=args.baud)
+    out(table(rows))
+    return 1 if any(r.outcome == "FAIL" for r in rows) else 0
+
+
 def cmd_monitor(args: argparse.Namespace) -> int:
     from ..devices.monitor import open_tap
 
@@ -258,6 +286,7 @@ def _emulate_c_firmware(args: argparse.Namespace, profile) -> int:
     """``vtexp device emulate --firmware avr|host``: the reference firmware in C."""
     from ..devices.base import stream_watchdog_limit_ms
     from ..devices.cfirmware import AvrSimulator, HostFirmware
+    from ..devices.link import suggested_reply_ms
     from ..errors import InputError
 
     for flag, value in (("--delay-ms", args.delay_ms), ("--rows", args.rows),
@@ -281,20 +310,27 @@ def _emulate_c_firmware(args: argparse.Namespace, profile) -> int:
         what = "the reference firmware built for this computer"
     port = proc.start()
     out(f"emulating {profile.name} with {what} on {port}")
+    # A reply wait that fits five attempts of a request in the silence limit, as the
+    # defaults do: four replies lost in a row on a noisy line do not lose the session
+    # (a longer wait, 250 ms with a 1 s heartbeat, survived two).
+    reply = suggested_reply_ms(1000)
     if args.firmware == "avr" and args.lockstep:
         # the host keeps time by the chip, which runs on while a busy host's threads wait
-        # for the processor: the same slower heartbeat and longer wait for replies
-        spec = f"serial:{port},heartbeat_ms=1000,reply_ms=250,lockstep={proc.lockstep_path}"
+        # for the processor: the same slower heartbeat
+        spec = (f"serial:{port},heartbeat_ms=1000,reply_ms={reply},"
+                f"lockstep={proc.lockstep_path}")
         out(f"use it with --device {spec}   (in lockstep: the chip's time, as fast as this "
             "computer goes; Ctrl-C to stop)")
     elif args.firmware == "avr":
         # the simulated chip can fall behind the wall clock on a busy computer: a slower
-        # heartbeat and a longer wait for replies keep that from looking like a lost link
-        out(f"use it with --device serial:{port},heartbeat_ms=1000,reply_ms=250   "
+        # heartbeat keeps that from looking like a lost link (a reply that comes after
+        # the wait only costs a resend, answered from the device's cache)
+        out(f"use it with --device serial:{port},heartbeat_ms=1000,reply_ms={reply}   "
             "(Ctrl-C to stop)")
         live = stream_watchdog_limit_ms(profile)
         if live < 1000:         # the device's watchdog would be too long to stream with
-            out(f"with vtexp live: --device serial:{port},heartbeat_ms={live},reply_ms=250")
+            out(f"with vtexp live: --device serial:{port},heartbeat_ms={live},"
+                f"reply_ms={suggested_reply_ms(live)}")
     else:
         out(f"use it with --device serial:{port}   (Ctrl-C to stop)")
     try:

@@ -295,6 +295,10 @@ class Firmware:
             return StatusReply(seq, self.state, pb.play_id if pb else 0,
                                pb.n_onsets if pb else 0, now, c.rx_frames, c.rx_bad,
                                c.duplicates, c.watchdog_trips)
+        if isinstance(msg, GetOnsets):
+            # Read-only, so served without a session too: after a watchdog trip the host
+            # recovers the interrupted play's onsets before its HELLO forgets them.
+            return self._get_onsets(seq, msg)
         if not self.session:
             return self._nak(seq, NakReason.NO_SESSION)
         if isinstance(msg, Heartbeat):
@@ -307,8 +311,6 @@ class Firmware:
             return self._upload_chunk(seq, msg)
         if isinstance(msg, Trigger):
             return self._trigger(seq, msg)
-        if isinstance(msg, GetOnsets):
-            return self._get_onsets(seq, msg)
         return self._nak(seq, NakReason.UNKNOWN_TYPE, msg.TYPE)   # pragma: no cover
 
     def _hello(self, seq: int, msg: Hello, events: list[Message]) -> Message:

@@ -41,6 +41,21 @@ from .wire import Message, Nak, NakReason
 # 0.2 + 0.6 + 0.05 of a period.
 SILENCE_FRACTION = 0.6
 HEARTBEAT_FRACTION = 0.2
+# A request may be sent this many times within the silence limit: with the defaults (25 ms
+# of reply wait and 200 ms of heartbeat period: 120 ms of silence) four replies lost in a
+# row do not lose the device, the fifth attempt's reply still arrives in time.
+ATTEMPTS_IN_SILENCE = 5
+
+
+def suggested_reply_ms(heartbeat_ms: float) -> int:
+    """The longest reply wait (``reply_ms``, in 10 ms steps, at least the default 25 ms)
+    that lets a request be sent :data:`ATTEMPTS_IN_SILENCE` times within the silence
+    limit of a heartbeat period of ``heartbeat_ms``, as the defaults do: a link with a
+    slower heartbeat (a simulated chip, a busy computer) then survives as many lost replies
+    in a row. A longer wait than this, with the same period, survives fewer."""
+    return max(25, int(SILENCE_FRACTION * heartbeat_ms / ATTEMPTS_IN_SILENCE) // 10 * 10)
+
+
 # A pass of the reader's loop takes at most the port's read timeout (10 ms) plus a
 # frame's decoding; a pass longer than this means the process was not running.
 STARVED_S = 0.05
@@ -193,6 +208,14 @@ class Link:
             self.port.close()
         except Exception:           # already gone (unplugged): nothing left to release
             pass
+
+    def accept_frames_up_to(self, max_payload: int) -> None:
+        """Take device frames of ``max_payload`` + 7 raw bytes if that is more than the
+        reader already takes (docs/protocol.md, "The largest frame a host must accept")."""
+        need = max_payload + wire.MIN_FRAME
+        if need > self._reader.max_frame:
+            # in place: the reader thread may be in the middle of the next frame
+            self._reader.accept(need)
 
     # -- state ------------------------------------------------------------------------------
     @property

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from ..clock import REAL, Clock
-from ..errors import DeviceError, InputError
+from ..errors import DeviceError, InputError, PlayInterrupted
 from ..model import (
     DeviceInfo,
     DeviceProfile,
@@ -164,6 +164,7 @@ class _PlayState:
     onsets: list[int | None] = field(default_factory=list)
     done: PlayDone | None = None
     triggered: bool = False         # the device acknowledged the TRIGGER: it played
+    alarm_us: int | None = None     # device time of a watchdog ALARM heard during the play
 
 
 class SerialDevice(DeviceBase):
@@ -261,6 +262,7 @@ class SerialDevice(DeviceBase):
         try:
             self.hello = hello = self._handshake(link)
             self._check_against_profile(hello)
+            link.accept_frames_up_to(hello.max_payload)
             link.start_heartbeat(hello.heartbeat_ms)
         except BaseException:
             link.close()
@@ -441,6 +443,8 @@ class SerialDevice(DeviceBase):
             self.alarms.append(msg)
             if msg.code == wire.AlarmCode.WATCHDOG:
                 self._session_ended = "ALARM WATCHDOG"
+                if st is not None:
+                    st.alarm_us = msg.t_us
 
     # -- play -------------------------------------------------------------------------------
     def _play(self, schedule: Schedule) -> PlayReport:
@@ -485,8 +489,7 @@ class SerialDevice(DeviceBase):
         if st.done is not None and st.done.reason != DoneReason.FINISHED:
             self._current = None
             if st.done.reason == DoneReason.WATCHDOG:
-                raise DeviceError(f"{self._watchdog_message()}; the play stopped after "
-                                  f"{st.done.n_onsets} of {len(wp)} onsets")
+                raise self._interrupted(link, st, pulses, start_us, schedule)
             raise DeviceError(f"the device on {self.port} stopped the play early "
                               f"({DoneReason.NAMES.get(st.done.reason, st.done.reason)}) "
                               f"after {st.done.n_onsets} of {len(wp)} onsets")
@@ -587,27 +590,89 @@ class SerialDevice(DeviceBase):
                 deadline = clock.now() + hb       # still going (device clock slower?)
                 continue
             if status.state == wire.DeviceState.NO_SESSION:
-                raise DeviceError(f"the device on {self.port} ended the session during the "
-                                  "play (its watchdog fired): every actuator is off")
+                st.done = PlayDone(st.play_id, DoneReason.WATCHDOG, status.n_onsets, 0)
+                return                  # the watchdog stopped it; its PLAY_DONE was lost
             return                      # finished; the PLAY_DONE event was lost on the line
 
-    def _fetch_missing(self, link: Link, st: _PlayState) -> None:
-        """Ask again for onsets whose ONSET events were lost (counted, never guessed)."""
+    def _interrupted(self, link: Link, st: _PlayState, pulses: list[Pulse], start_us: int,
+                     schedule: Schedule) -> PlayInterrupted:
+        """The error for a play the device's watchdog stopped, with the pulses it did play:
+        their onsets asked for with GET_ONSETS, which the device serves without a session,
+        before a HELLO would forget them (docs/protocol.md, "Session"). A device of the
+        previous edition answers NO_SESSION: then only the onsets whose ONSET events were
+        heard are kept."""
+        then = ""
+        try:
+            self._fetch_missing(link, st, played_only=True)
+        except DeviceLost:
+            # Said here, so that the ALL_OFF after it does not replace this error (and its
+            # report) with the loss; the next call on the device raises it again.
+            self._lost_reported = True
+            then = (f". Then contact with it was lost ({link.lost or 'the link failed'}): "
+                    "reconnect it")
+        except DeviceError:
+            pass            # NO_SESSION (the previous edition): keep the onsets heard
+        stop_us = st.done.t_us if st.done is not None and st.done.t_us else st.alarm_us
+        n_played = st.done.n_onsets if st.done is not None else None
+        return self._stopped(pulses, st.onsets, start_us, schedule, stop_us, n_played, then)
+
+    def _stopped(self, pulses: list[Pulse], onsets: list[int | None], start_us: int,
+                 schedule: Schedule, stop_us: int | None, n_played: int | None = None,
+                 then: str = "") -> PlayInterrupted:
+        """:class:`PlayInterrupted` for a play the watchdog stopped: the pulses with a
+        device-reported onset (``onsets``, device µs), none guessed. A pulse the trip cut
+        short lasts until the device's stop time (``stop_us``, from its PLAY_DONE or
+        ALARM), when that was heard. ``n_played``: how many the device says it played."""
+        played = []
+        for p, t in zip(pulses, onsets):
+            if t is None:
+                continue
+            dur = p.duration_ms
+            if stop_us is not None and stop_us >= t:
+                dur = min(dur, (stop_us - t) / 1000.0)
+            played.append(PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
+                                      onset_ms=(t - start_us) / 1000.0, duration_ms=dur,
+                                      level=p.level, train=p.train))
+        update: dict[str, Any] = {"completed": False}
+        if stop_us is not None and stop_us >= start_us:
+            update["duration_ms"] = min(schedule.duration_ms, (stop_us - start_us) / 1000.0)
+        report = self._report(start_us, schedule, played).model_copy(update=update)
+        n_played = len(played) if n_played is None else n_played
+        kept = ("their device-reported times are kept with the error"
+                if n_played <= len(played) else
+                f"the device-reported times of {len(played)} are kept with the error; those of "
+                f"{n_played - len(played)} more are not known: the device does not serve "
+                "GET_ONSETS without a session (firmware of the previous edition of the wire "
+                "protocol; update it)")
+        return PlayInterrupted(
+            f"{self._watchdog_message()}; the play stopped after {n_played} of {len(pulses)} "
+            f"onsets ({kept}){then}", report)
+
+    def _fetch_missing(self, link: Link, st: _PlayState, *, played_only: bool = False) -> None:
+        """Ask again for onsets whose ONSET events were lost (counted, never guessed).
+
+        ``played_only``: the play was stopped early; a pulse the device did not play stays
+        None (else that is an error)."""
         fit = (self._payload_budget() - 5) // 8
-        while (missing := [i for i, t in enumerate(st.onsets) if t is None]):
+        first = 0
+        while (missing := [i for i, t in enumerate(st.onsets) if t is None and i >= first]):
             first = missing[0]
             count = min(fit, missing[-1] - first + 1)
             rep = link.expect(GetOnsets(st.play_id, first, count), OnsetsReply,
                               reply_bytes=8 * count + 16)
-            for k, t in enumerate(rep.times_us):
-                if st.onsets[first + k] is None:
-                    if t == wire.NOT_PLAYED:
-                        raise DeviceError(f"the device on {self.port} did not play pulse "
-                                          f"{first + k} of the schedule")
-                    st.onsets[first + k] = t
-                    self.recovered["onsets_fetched"] += 1
             if not rep.times_us:
                 raise DeviceError(f"the device on {self.port} has no onset for pulse {first}")
+            for k, t in enumerate(rep.times_us):
+                if st.onsets[first + k] is not None:
+                    continue
+                if t == wire.NOT_PLAYED:
+                    if played_only:
+                        continue            # not played before the play stopped
+                    raise DeviceError(f"the device on {self.port} did not play pulse "
+                                      f"{first + k} of the schedule")
+                st.onsets[first + k] = t
+                self.recovered["onsets_fetched"] += 1
+            first += len(rep.times_us)
 
     def _payload_budget(self) -> int:
         """Largest payload to put in one frame: what the device takes, and no more than
@@ -642,15 +707,36 @@ class SerialDevice(DeviceBase):
         first_t_us: int | None = None
         poll = self._check_stop if self._should_stop is not None else None
         t0 = self.clock.now() + 0.002
+        cols = self.profile.cols
         try:
             for t_ms, changes, starting in groups:
                 target = t0 + t_ms / 1000.0
                 self._next_send_at = target
                 wait_until(target, self.clock, link, poll=poll)
                 applied = None
+                changed: set[int] = set()
                 for msg in self._frames(state, changes):
-                    ack = link.expect(msg, Ack)
+                    try:
+                        ack = link.expect(msg, Ack)
+                    except DeviceRefused as e:
+                        if e.nak.reason != NakReason.NO_SESSION or (
+                                first_t_us is None and applied is None):
+                            raise           # nothing played yet: it may be played anew
+                        # The watchdog stopped the play between frames: never played twice.
+                        self._session_ended = "NO_SESSION"
+                        for i in starting:
+                            if pulses[i].row * cols + pulses[i].col in changed:
+                                onsets[i] = applied
+                        start = first_t_us if first_t_us is not None else \
+                            applied - round(t_ms * 1000)
+                        alarm = next((a.t_us for a in reversed(self.alarms)
+                                      if a.code == wire.AlarmCode.WATCHDOG and a.t_us >= start),
+                                     None)
+                        raise self._stopped(pulses, onsets, start, schedule,
+                                            alarm) from None
                     applied = ack.t_us if applied is None else applied
+                    changed.update(range(len(state)) if isinstance(msg, SetFrameFull)
+                                   else (i for i, _ in msg.changes))
                 for i, s in changes:
                     state[i] = s
                 # The play's start on the device clock: the instant that came least late

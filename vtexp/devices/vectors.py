@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,54 +50,67 @@ def _decoded(hex_bytes: str) -> str:
                      for x in items) or "(nothing)"
 
 
-def replay(cmd: Callable[[str], str], vectors: dict | None = None) -> tuple[int, list[Mismatch]]:
+@dataclass(frozen=True)
+class VectorResult:
+    """One vector (or one group of them: the CRC check, the COBS examples, the frames)
+    replayed against a runner: how many checks it made, and what differed (None if
+    nothing)."""
+
+    section: str
+    name: str
+    checks: int
+    mismatch: str | None = None
+
+
+def check_each(cmd: Callable[[str], str], vectors: dict | None = None
+               ) -> Iterator[VectorResult]:
     """Feed every vector to a runner (``cmd`` sends one command line and returns the answer
-    line); return the number of checks made and the mismatches."""
+    line), yielding one result per conversation, bad frame and stream, and one each for
+    the CRC check, the COBS examples and the frames."""
     v = vectors or load_vectors()
-    bad: list[Mismatch] = []
-    n = 0
 
     def answer(line: str) -> str:
         a = cmd(line)
         return a[2:] if a.startswith("= ") else a
 
     # CRC and COBS: the core's own functions
-    n += 1
     got = answer("crc " + v["crc32_check"]["ascii"].encode().hex())
-    if got != v["crc32_check"]["crc32"]:
-        bad.append(Mismatch("crc32_check", "123456789", f"got {got}"))
+    yield VectorResult("crc32_check", "123456789", 1,
+                       None if got == v["crc32_check"]["crc32"] else f"got {got}")
+    bad: list[str] = []
     for k, c in enumerate(v["cobs"]):
-        n += 2
         if answer(f"cobs {c['decoded'] or '-'}") != c["encoded"]:
-            bad.append(Mismatch("cobs", f"example {k + 1}", "encoding differs"))
+            bad.append(f"example {k + 1}: encoding differs")
         if answer(f"uncobs {c['encoded']}") != c["decoded"]:
-            bad.append(Mismatch("cobs", f"example {k + 1}", "decoding differs"))
+            bad.append(f"example {k + 1}: decoding differs")
+    yield VectorResult("cobs", "examples", 2 * len(v["cobs"]), "; ".join(bad) or None)
     # every message type through the core's encoder
+    bad = []
     for f in v["frames"]:
-        n += 1
         raw = bytes.fromhex(f["raw"])
         got = answer(f"frame {raw[1]} {raw[2]} {raw[3:-4].hex() or '-'}")
         if got != f["wire"]:
-            bad.append(Mismatch("frames", f["name"], f"wire {got}, expected {f['wire']}"))
+            bad.append(f"{f['name']}: wire {got}, expected {f['wire']}")
+    yield VectorResult("frames", "one of each type", len(v["frames"]), "; ".join(bad) or None)
     # the device's conversations, byte for byte, at the vectors' device times
     for conv in v["conversations"]:
         if cmd(config_line(conv["config"])) != "ok":
-            bad.append(Mismatch("conversations", conv["name"], "config refused"))
+            yield VectorResult("conversations", conv["name"], 1, "config refused")
             continue
+        n, why = 0, None
         for step in conv["steps"]:
             n += 1
             line = (f"at {step['t_us']} {step['host']}" if step["host"] else
                     f"tick {step['t_us']}")
             got = answer(line)
             if got != step["device"]:
-                bad.append(Mismatch("conversations", conv["name"],
-                                    f"at t={step['t_us']} us: answered {_decoded(got)}; "
-                                    f"expected {_decoded(step['device'])}"))
+                why = (f"at t={step['t_us']} us: answered {_decoded(got)}; "
+                       f"expected {_decoded(step['device'])}")
                 break
+        yield VectorResult("conversations", conv["name"], n, why)
     # unreadable frames and resynchronisation, through a device with no session
     vest = v["conversations"][0]["config"]
     for bf in v["bad_frames"]:
-        n += 1
         cmd(config_line(vest))
         reply = wire.FrameReader().feed(bytes.fromhex(answer(f"at 1000 {bf['wire']}")))
         naks = [m for _, m in (x for x in reply if isinstance(x, tuple))
@@ -106,19 +119,74 @@ def replay(cmd: Callable[[str], str], vectors: dict | None = None) -> tuple[int,
                 "bad_frame": wire.NakReason.BAD_FRAME, "bad_version": wire.NakReason.BAD_VERSION,
                 "unknown_type": wire.NakReason.UNKNOWN_TYPE,
                 "bad_payload": wire.NakReason.BAD_PAYLOAD}[bf["error"]]
-        if [x.reason for x in naks] != [want]:
-            bad.append(Mismatch("bad_frames", bf["name"], f"answered {naks}"))
+        yield VectorResult("bad_frames", bf["name"], 1,
+                           None if [x.reason for x in naks] == [want] else f"answered {naks}")
     for s in v["streams"]:
-        n += 1
         cmd(config_line(vest))
         out = [m for x in wire.FrameReader().feed(bytes.fromhex(answer(f"at 1000 {s['wire']}")))
                if isinstance(x, tuple) for m in [x[1]]]
         naks = [m for m in out if isinstance(m, wire.Nak)]
         replies = [(type(m).__name__, m.ack_seq) for m in out if not isinstance(m, wire.Nak)]
         wanted = [("HelloReply", 0), ("Ack", 2)]
-        if len(naks) != s["n_errors"] or replies != wanted:
-            bad.append(Mismatch("streams", s["name"], f"{len(naks)} NAKs and replies {replies}"))
+        ok = len(naks) == s["n_errors"] and replies == wanted
+        yield VectorResult("streams", s["name"], 1,
+                           None if ok else f"{len(naks)} NAKs and replies {replies}")
+
+
+def replay(cmd: Callable[[str], str], vectors: dict | None = None) -> tuple[int, list[Mismatch]]:
+    """Feed every vector to a runner (``cmd`` sends one command line and returns the answer
+    line); return the number of checks made and the mismatches."""
+    n, bad = 0, []
+    for r in check_each(cmd, vectors):
+        n += r.checks
+        if r.mismatch is not None:
+            bad.append(Mismatch(r.section, r.name, r.mismatch))
     return n, bad
+
+
+class PythonRunner:
+    """The vector runner's line protocol answered by vtexp's own model of the device
+    (:class:`~vtexp.devices.firmware.Firmware`, the emulator's), on a fake clock."""
+
+    def __init__(self, firmware_class: type | None = None):
+        from .firmware import Firmware
+        self.firmware_class = firmware_class or Firmware
+        self.now = 0
+        self.fw = None
+
+    def __call__(self, line: str) -> str:
+        from .firmware import FirmwareConfig
+        cmd, _, rest = line.partition(" ")
+        args = rest.split()
+        if cmd == "config":
+            vals = dict(zip(CONFIG_FIELDS, map(int, args[:len(CONFIG_FIELDS)])))
+            texts = [bytes.fromhex(t).decode() if t != "-" else "" for t in args[-2:]]
+            cfg = FirmwareConfig(**vals, firmware=texts[0], device_id=texts[1])
+            self.now = 0
+            self.fw = self.firmware_class(cfg, lambda: self.now)
+            return "ok"
+        if cmd in ("at", "tick"):
+            assert self.fw is not None
+            self.now = int(args[0])
+            out = (self.fw.receive(bytes.fromhex(args[1])) if cmd == "at"
+                   else self.fw.tick())
+            return "= " + b"".join(out).hex()
+        if cmd == "crc":
+            return f"= {wire.crc32(bytes.fromhex(args[0])):08x}"
+        if cmd == "cobs":
+            return "= " + wire.cobs_encode(bytes.fromhex(args[0] if args[0] != "-" else ""
+                                                         )).hex()
+        if cmd == "uncobs":
+            return "= " + wire.cobs_decode(bytes.fromhex(args[0])).hex()
+        if cmd == "frame":
+            body = bytes([wire.PROTOCOL_VERSION, int(args[0]), int(args[1])])
+            body += bytes.fromhex(args[2]) if args[2] != "-" else b""
+            return "= " + (b"\x00" + wire.cobs_encode(body + wire.CRC.pack(wire.crc32(body)))
+                           + b"\x00").hex()
+        return "! unknown command"
+
+    def close(self) -> None:
+        pass
 
 
 class ProcessRunner:
@@ -150,7 +218,11 @@ class SerialRunner:
     def __init__(self, port: str, baudrate: int = 1_000_000, timeout_s: float = 10.0):
         import serial
 
-        self.port = serial.serial_for_url(port, baudrate=baudrate, timeout=0.2)
+        try:
+            self.port = serial.serial_for_url(port, baudrate=baudrate, timeout=0.2)
+        except (ValueError, OSError) as e:      # pyserial's SerialException is an OSError
+            raise DeviceError(f"cannot open the vector runner's serial port {port!r}: {e}. "
+                              "'vtexp device list' shows the ports found.") from None
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
             self.port.write((self.PROBE[0] + "\n").encode())
@@ -161,6 +233,7 @@ class SerialRunner:
                 self.port.reset_input_buffer()
                 self.port.timeout = timeout_s
                 return
+        self.port.close()
         raise DeviceError(f"no vector runner answered on {port} (flash it with 'vtexp firmware "
                           "flash --profile vectors')")
 
@@ -175,4 +248,5 @@ class SerialRunner:
         self.port.close()
 
 
-__all__ = ["Mismatch", "ProcessRunner", "SerialRunner", "load_vectors", "replay"]
+__all__ = ["Mismatch", "ProcessRunner", "PythonRunner", "SerialRunner", "VectorResult",
+           "check_each", "load_vectors", "replay"]

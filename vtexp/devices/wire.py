@@ -957,11 +957,16 @@ class FrameReader:
     """
 
     def __init__(self, max_frame: int = MAX_FRAME):
-        self.max_frame = max_frame
         self._buf = bytearray()
         self._overflow = False
-        self.max_encoded = max_frame + max_frame // 254 + 2
+        self.accept(max_frame)
         self.stats = ReaderStats()
+
+    def accept(self, max_frame: int) -> None:
+        """Take frames of up to ``max_frame`` decoded bytes from now on; a frame being
+        read is kept."""
+        self.max_frame = max_frame
+        self.max_encoded = max_frame + max_frame // 254 + 2
 
     def feed(self, data: bytes) -> list[tuple[int, Message] | WireError]:
         out: list[tuple[int, Message] | WireError] = []

@@ -21,7 +21,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from ..clock import iso
-from ..errors import DeviceError, SessionAborted, SessionError
+from ..errors import DeviceError, PlayInterrupted, SessionAborted, SessionError
 from ..experiment import LoadedExperiment
 from ..model import PlayReport, TrialRecord
 from ..responders.base import Responder, call_hook
@@ -188,19 +188,48 @@ class Engine:
 
     # -- a trial ------------------------------------------------------------------------
     def trial(self, trial: Trial, total: int) -> TrialDone:
-        """A trial, with the experimenter's choice when the device fails during it."""
+        """A trial, with the experimenter's choice when the device fails during it.
+
+        Every play the device reported is logged with the trial, a retry's included: one
+        it stopped part-way (:class:`~vtexp.errors.PlayInterrupted`) with the pulses it
+        did play, in order (``play`` 0, 1, ... over the trial's attempts). A trial skipped
+        after a fault is logged with status ``device_error``; so is one that had a fault
+        and plays and then ended the session (an abort after the fault, Escape or an error
+        in a retry), with those plays, rather than leave them out of the log; a resume goes
+        on after such a trial."""
         wall = self.clock.wall()
+        plays: list[PlayReport] = []
+        faulted = False
         while True:
             started_at = iso(self.clock)
             self.emit(TrialStarted(trial, started_at, self.clock.now_ms()))
             try:
-                rows, plays = self._play_and_ask(trial, started_at)
+                rows = self._play_and_ask(trial, started_at, plays)
             except DeviceError as e:
-                if self.device_fault(e, trial) == "retry":
+                faulted = True
+                try:
+                    choice = self.device_fault(e, trial)
+                except BaseException:
+                    self._cut_short(trial, started_at, plays, total, wall)
+                    raise
+                if choice == "retry":
                     continue
-                rows, plays = trial_rows(trial, self.questions, started_at,
-                                         status="device_error"), []
+                rows = self._device_error_rows(trial, started_at)
+            except BaseException:
+                if faulted:
+                    self._cut_short(trial, started_at, plays, total, wall)
+                raise
             return self._done(trial, rows, plays, total, wall)
+
+    def _device_error_rows(self, trial: Trial, started_at: str) -> tuple[TrialRecord, ...]:
+        return trial_rows(trial, self.questions, started_at, status="device_error")
+
+    def _cut_short(self, trial: Trial, started_at: str, plays: list[PlayReport], total: int,
+                   wall: float) -> None:
+        """A trial that had a device fault ends the session: logged ``device_error`` with
+        the plays the device reported, if any (felt, so never left out of the log)."""
+        if plays:
+            self._done(trial, self._device_error_rows(trial, started_at), plays, total, wall)
 
     def device_fault(self, error: DeviceError, trial: Trial) -> str:
         """Every actuator is already off; the session pauses on the experimenter's choice:
@@ -225,9 +254,10 @@ class Engine:
             return choice
         raise error
 
-    def _play_and_ask(self, trial: Trial, started_at: str
-                      ) -> tuple[tuple[TrialRecord, ...], list[PlayReport]]:
-        """Play the stimulus, then ask each question in turn."""
+    def _play_and_ask(self, trial: Trial, started_at: str, plays: list[PlayReport]
+                      ) -> tuple[TrialRecord, ...]:
+        """Play the stimulus, then ask each question in turn; each play (an interrupted
+        one too) is appended to ``plays``, which may hold an earlier attempt's."""
         schedule, stim_file = trial.condition.schedule, None
         if trial.condition.camera:
             if self.camera is None:
@@ -235,15 +265,15 @@ class Engine:
                                    "camera")
             schedule, stim_file, live = self.camera.take(trial, self.device)
             if live is not None:
-                return self._live_trial(trial, live, started_at, stim_file), []
-        plays: list[PlayReport] = []
+                return self._live_trial(trial, live, started_at, stim_file)
+        first = len(plays)
         call_hook(self.responder, "stimulus_starts", trial)
         self._play(trial, schedule, plays)
         answers: dict = {}
         self._ask_all(trial, answers, plays,
                       lambda q, before: self._replay(trial, schedule, q, plays, before))
         return trial_rows(trial, self.questions, started_at, answers=answers,
-                          felt=Felt.played(plays[0], stim_file)), plays
+                          felt=Felt.played(plays[first], stim_file))
 
     def _play(self, trial: Trial, schedule, plays: list[PlayReport]) -> PlayReport:
         """One play (the first, or a replay); the responder's abort key is read while it
@@ -257,6 +287,9 @@ class Engine:
                                       should_stop=getattr(self.responder, "stop_requested", None))
         except SessionAborted:
             call_hook(self.responder, "stimulus_stopped", trial)
+            raise
+        except PlayInterrupted as e:    # what the device played before it stopped is kept
+            plays.append(e.report)
             raise
         plays.append(report)
         call_hook(self.responder, "stimulus_played", trial, report)

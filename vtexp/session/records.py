@@ -74,8 +74,11 @@ class Answered:
 class TrialDone:
     """A trial ended: its rows (one per question) and what the device reported playing.
 
-    ``total``: the trials the session plans; ``wall_s``: the wall clock when the trial's
-    first attempt started (where a run's events are placed on the session's timeline).
+    ``plays``: every play of the trial the device reported, in order, over all its
+    attempts: a play the device stopped part-way (``completed`` false) holds the pulses it
+    played, and a retry's plays follow it. ``total``: the trials the session plans;
+    ``wall_s``: the wall clock when the trial's first attempt started (where a run's
+    events are placed on the session's timeline).
     """
 
     trial: Trial
