@@ -357,22 +357,32 @@ def test_the_runtime_plays_on_the_emulator_and_maps_onsets_to_the_given_clock():
     assert emu.all_outputs_off()
 
 
-def test_a_stop_mid_play_turns_every_actuator_off_at_once():
-    arr = builder.TactileArray("sim", PROFILE, name="arr")
+@pytest.mark.parametrize("device", ["sim", "emulator"])
+def test_a_stop_mid_play_turns_every_actuator_off_and_keeps_what_was_played(device):
+    arr = builder.TactileArray(device, PROFILE, name="arr")
     try:
         arr.open(say=lambda line: None)
         stim = builder.TactileStimulus(arr, "tactile")
-        stim.start_routine(None, stimulus="shape:shape=square", pipeline="edge-trace",
-                           coding="", encoding_params="", coding_params="")
+        stim.start_routine(FakeClock(0.0), stimulus="shape:shape=square",
+                           pipeline="edge-trace", coding="", encoding_params="",
+                           coding_params="")
         stim.play()
-        time.sleep(0.2)                         # 20 pulses of 60 ms: 1.2 s
+        time.sleep(0.3)                         # 20 pulses of 60 ms: 1.2 s
         assert not stim.finished
-        t = time.monotonic()
         stim.stop()
-        assert time.monotonic() - t < 0.2
-        assert not arr.device.state.any()
-        assert any(e.kind == "stopped" for e in arr.device.history)
-        assert stim.data()["tactile.completed"] is False
+        d = stim.data()
+        assert d["tactile.completed"] is False
+        assert 0 < d["tactile.pulses_played"] < d["tactile.pulses_scheduled"] == 20
+        assert len(d["tactile.onsets"]) == d["tactile.pulses_played"]
+        if device == "sim":
+            assert not arr.device.state.any()
+            assert any(e.kind == "stopped" for e in arr.device.history)
+        else:
+            emu = arr.device.emulator
+            assert emu.all_outputs_off()
+            on = [a for a in emu.actuations() if a.cause == "play" and not a.setting.is_off]
+            assert len(on) == d["tactile.pulses_played"]
+            assert any(a.cause == "all_off" for a in emu.actuations())
     finally:
         arr.close()
 

@@ -346,7 +346,6 @@ class TactileStimulus:
         self._stop = threading.Event()
         self._report: PlayReport | None = None
         self._error: BaseException | None = None
-        self._started_device_ms: float | None = None
         self._offset_s: float | None = None
         array._stimuli.append(self)
 
@@ -421,7 +420,6 @@ class TactileStimulus:
         self._clock_now = (lambda: clock.getTime(format="float")) if clock is not None else None
         self._report = None
         self._error = None
-        self._started_device_ms = None
         self._offset_s = None
         self._stop.clear()
 
@@ -436,18 +434,14 @@ class TactileStimulus:
 
         def run() -> None:
             try:
-                self._report = dev.play(schedule, should_stop=self._stop.is_set,
-                                        on_started=self._on_started)
-            except SessionAborted:
-                pass                    # stopped: every actuator is off (DeviceBase.play)
+                self._report = dev.play(schedule, should_stop=self._stop.is_set)
+            except SessionAborted as e:  # stopped: every actuator is off (DeviceBase.play)
+                self._report = e.played  # and what the device had played until then
             except BaseException as e:  # noqa: BLE001 - said on the main thread
                 self._error = e
 
         self._thread = threading.Thread(target=run, name=f"vtexp {self.name}", daemon=True)
         self._thread.start()
-
-    def _on_started(self, device_ms: float, host_ms: float | None) -> None:
-        self._started_device_ms = host_ms
 
     @property
     def finished(self) -> bool:
@@ -484,7 +478,7 @@ class TactileStimulus:
         r = self._report
         out: dict[str, Any] = {f"{n}.stimulus": self._spec.get("stimulus", ""),
                                f"{n}.pulses_scheduled": len(s.pulses) if s else 0}
-        if r is None:               # stopped before the device reported the play
+        if r is None:               # stopped before the play started
             out.update({f"{n}.pulses_played": 0, f"{n}.completed": False,
                         f"{n}.onsets": [], f"{n}.actuators": []})
             return out
