@@ -81,6 +81,7 @@ print("LISTED", sorted(plugins.listPlugins("all")))
 print("LOADED", plugins.isPluginLoaded("psychopy-vtexp"))
 from psychopy.experiment import getAllComponents
 print("COMPONENT", "TactileStimulusComponent" in getAllComponents())
+print("ICON", getAllComponents()["TactileStimulusComponent"].iconFile)
 from psychopy.scripts.psyexpCompile import compileScript
 compileScript(sys.argv[1], None, sys.argv[2])
 """
@@ -113,6 +114,16 @@ def test_psychopy_finds_the_plugin_through_its_entry_point(compiled):
     assert "psychopy-vtexp" in ast.literal_eval(said["LISTED"])
     assert said["LOADED"] == "True"
     assert said["COMPONENT"] == "True"
+
+
+def test_builder_finds_the_components_icon_in_every_theme(compiled):
+    """Builder (psychopy-app 2026.2) looks for ``iconFile``'s stem in a folder per theme
+    beside it, and fails to start when a component has none there."""
+    out = (compiled.parent / "compile.out").read_text().splitlines()
+    icon = Path(next(ln.split(" ", 1)[1] for ln in out if ln.startswith("ICON ")))
+    for theme in ("classic", "dark", "light"):
+        assert sorted(p.name for p in (icon.parent / theme).glob(f"{icon.stem}*.png")) == [
+            f"{icon.stem}.png", f"{icon.stem}@2x.png"], theme
 
 
 # --------------------------------------------------------------------------- a run

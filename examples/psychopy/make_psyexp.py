@@ -31,8 +31,8 @@ trial = exp.addRoutine("trial")
 fix = TextComponent(exp, "trial", name="fixation", text="+", letterHeight=0.1,
                     startVal=0.0, stopType="duration (s)", stopVal=0.4)
 tactile = TactileStimulusComponent(
-    exp, "trial", name="tactile", startVal=0.4, stopVal="", device="emulator",
-    profile="vest_6x8", stimulus="$stimulus", pipeline="edge-trace",
+    exp, "trial", name="tactile", startVal=0.4, stopVal="", durationEstim=0.8,
+    device="emulator", profile="vest_6x8", stimulus="$stimulus", pipeline="edge-trace",
     coding="sequential-trace", codingParams="duration_ms=40, soa_ms=40")
 tactile.params["stimulus"].updates = "set every repeat"
 prompt = TextComponent(exp, "trial", name="prompt",
