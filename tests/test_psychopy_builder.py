@@ -306,6 +306,40 @@ def test_escape_during_a_stimulus_turns_every_actuator_off(
         assert len(ast.literal_eval(r["tactile.onsets"])) == int(r["tactile.pulses_played"])
 
 
+def test_a_crash_mid_stimulus_turns_every_actuator_off(compiled, plugin_site, xvfb, tmp_path):
+    """The script raises an error (a bug of its own) 0.2 s into the first stimulus: the
+    array is turned off on the way out (PsychoPy's device manager at exit), not by the
+    device's watchdog."""
+    run_dir = tmp_path / "crash"
+    run_dir.mkdir()
+    shutil.copy(compiled.parent / "conditions.csv", run_dir / "conditions.csv")
+    emu = PtyEmulator.for_profile(DeviceProfile.load(PROFILE))
+    port = emu.start()
+    try:
+        script = _sixty_hz(compiled.read_text(encoding="utf-8-sig")).replace(
+            "device='emulator'", f"device='serial:{port},heartbeat_ms=500'")
+        escape_check = '            if defaultKeyboard.getKeys(keyList=["escape"]):\n'
+        assert script.count(escape_check) == 1
+        script = script.replace(escape_check, (
+            "            if tactile.status == STARTED and t > 0.6:\n"
+            "                raise RuntimeError('a crash mid-stimulus')\n") + escape_check)
+        (run_dir / "tactile_shapes.py").write_text(script, encoding="utf-8")
+        r = subprocess.run([sys.executable, str(run_dir / "tactile_shapes.py")], cwd=run_dir,
+                           env=_env(plugin_site, tmp_path, xvfb), capture_output=True,
+                           text=True, timeout=120)
+        time.sleep(0.05)
+    finally:
+        emu.stop()
+    assert r.returncode == 1 and "RuntimeError: a crash mid-stimulus" in r.stderr
+    assert len(_plays(emu)) == 1
+    cut = emu.firmware.last_play
+    played = [t for t in cut.onsets if t != wire.NOT_PLAYED]
+    assert 0 < len(played) < len(cut.pulses)        # stopped mid-play
+    assert any(a.cause == "all_off" for a in emu.actuations())
+    assert emu.all_outputs_off()
+    assert not [a for a in emu.actuations() if a.cause == "watchdog"]
+
+
 def test_a_missing_stimulus_file_stops_before_the_first_routine_in_one_line(
         compiled, plugin_site, xvfb, tmp_path):
     """A conditions file naming an image that is not there: one line naming the
@@ -366,6 +400,19 @@ def test_the_runtime_plays_on_the_emulator_and_maps_onsets_to_the_given_clock():
     finally:
         arr.close()
     assert emu.all_outputs_off()
+    # closed at the end of the experiment; opened anew when it runs again in this process
+    assert arr.device is None
+    arr.open(say=lambda line: None)
+    try:
+        assert arr.device.emulator is not emu
+        again = builder.TactileStimulus(arr, "tactile")
+        again.start_routine(None, stimulus="shape:shape=triangle", pipeline="edge-trace",
+                            coding="", encoding_params="", coding_params="")
+        again.play()
+        assert _wait_true(lambda: again.finished, 10)
+        assert again.data()["tactile.completed"] is True
+    finally:
+        arr.close()
 
 
 @pytest.mark.parametrize("device", ["sim", "emulator"])

@@ -224,7 +224,6 @@ class TactileArray:
         self.profile: DeviceProfile | None = None
         self._stimuli: list[TactileStimulus] = []
         self._schedules: dict[tuple, Schedule] = {}
-        self._closed = False
 
     # PsychoPy's device manager asks these of its devices
     def isSameDevice(self, other: Any) -> bool:
@@ -264,7 +263,9 @@ class TactileArray:
                 raise InputError(f"{self.spec!r} keeps a virtual clock, not a person's time; "
                                  "use sim, emulator or serial:PORT", key="device")
             self.device = open_device(spec, self.profile, **self.options)
-            atexit.register(self.close)           # also if the device manager is not used
+            if not getattr(self, "_at_exit", False):   # also without the device manager
+                atexit.register(self.close)
+                self._at_exit = True
             self.device.open()
             check_ready(self.device, self.profile, say=say)
         except VtexpError as e:
@@ -279,15 +280,15 @@ class TactileArray:
         return self._schedules[key]
 
     def close(self) -> None:
-        """Stop any play, turn every actuator off, close the device. Safe to call again."""
-        if self._closed:
-            return
-        self._closed = True
-        for s in self._stimuli:
+        """Stop any play, turn every actuator off, close the device. Safe to call again;
+        :meth:`open` opens it anew (an experiment run again in the same process)."""
+        stimuli, self._stimuli = self._stimuli, []
+        for s in stimuli:
             s.stop()
-        if self.device is not None:
+        device, self.device = self.device, None
+        if device is not None:
             try:
-                self.device.close()
+                device.close()
             except VtexpError as e:           # a device lost: its watchdog turned it off
                 _log_error(f"{self.name}: closing the device: {_message(e)}")
 
