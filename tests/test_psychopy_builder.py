@@ -505,3 +505,37 @@ def test_a_pattern_file_from_vtexp_encode_plays_its_schedule(tmp_path, cli):
     with pytest.raises(Exception) as e:
         builder.compile_spec(other, stimulus=str(pat))
     assert "written for device profile 'vest_6x8'" in str(e.value)
+
+
+def test_a_damaged_pattern_file_is_refused_in_one_message_or_played_within_the_limits(
+        tmp_path, cli):
+    """The pattern file's reader, held to the rule of tests/fuzz.py: each damaged file
+    is refused with a message (InputError, UnsafeStimulus) or gives a schedule within
+    the profile's limits; no other exception."""
+    import random
+
+    import fuzz
+    from vtexp.errors import InputError, UnsafeStimulus
+    from vtexp.safety import check_schedule
+
+    pat = tmp_path / "square.json"
+    assert cli("encode", "shape:shape=square", "--pipeline", "edge-trace", "--device",
+               PROFILE, "--json", str(pat)).returncode == 0
+    text = pat.read_text()
+    profile = DeviceProfile.load(PROFILE)
+    outcomes = {"refused": 0, "accepted": 0}
+    for seed in range(40):
+        said: list[str] = []
+        damaged = tmp_path / f"damaged-{seed}.json"
+        damaged.write_text(fuzz.mutate_text(text, "json", random.Random(seed), said))
+        try:
+            s = builder.compile_spec(profile, stimulus=str(damaged))
+        except (InputError, UnsafeStimulus) as e:
+            assert str(e).strip() and "\n" not in str(e).strip(), (seed, said)
+            outcomes["refused"] += 1
+            continue
+        except Exception as e:                               # noqa: BLE001
+            pytest.fail(f"seed {seed} ({said}): {type(e).__name__}: {e}")
+        check_schedule(s, profile)
+        outcomes["accepted"] += 1
+    assert outcomes["refused"] > 0

@@ -172,7 +172,7 @@ def _pattern_file(path: Path, profile: DeviceProfile, check: Callable) -> Schedu
         raise InputError("pattern file not found", path=str(path))
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as e:
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as e:
         raise InputError(f"not a pattern file written by 'vtexp encode --json': {e}",
                          path=str(path)) from None
     if not isinstance(data, dict) or "schedule" not in data or "device" not in data:
