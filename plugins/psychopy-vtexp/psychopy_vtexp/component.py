@@ -49,7 +49,7 @@ class TactileStimulusComponent(BaseComponent):
                          stopType=stopType, stopVal=stopVal, startEstim=startEstim,
                          durationEstim=durationEstim, syncScreenRefresh=syncScreenRefresh)
         self.type = "TactileStimulus"
-        self.url = "https://github.com/vtexp/vtexp/blob/main/plugins/psychopy-vtexp/README.md"
+        self.url = None         # no page online yet: Builder shows no Help button
         self.exp.requireImport(importName="builder", importFrom="vtexp", importAs="vtexp_builder")
         self.order += ["stimulus", "pipeline", "coding", "encodingParams", "codingParams",
                        "device", "profile", "deviceLabel"]
