@@ -539,3 +539,23 @@ def test_a_damaged_pattern_file_is_refused_in_one_message_or_played_within_the_l
         check_schedule(s, profile)
         outcomes["accepted"] += 1
     assert outcomes["refused"] > 0
+
+
+def test_an_image_file_is_encoded_as_vtexp_run_encodes_it(tmp_path):
+    """An image file beside the experiment (a path relative to its folder) gives the
+    schedule vtexp's own compile path gives for the same image."""
+    from PIL import Image
+
+    from vtexp.compile import compile_stimulus
+    from vtexp.stimuli import render
+
+    profile = DeviceProfile.load(PROFILE)
+    gray = render("shape", {"shape": "triangle"}, profile.rows, profile.cols)
+    (tmp_path / "shapes").mkdir()
+    Image.fromarray(gray).save(tmp_path / "shapes" / "triangle.png")
+    s = builder.compile_spec(profile, stimulus="shapes/triangle.png", pipeline="edge-trace",
+                             coding_params="duration_ms=40", folder=tmp_path)
+    _, expected = compile_stimulus(gray, profile, pipeline="edge-trace", encoding_params={},
+                                   protocol="sequential-trace",
+                                   coding_params={"duration_ms": 40})
+    assert s == expected and len(s.pulses) > 0
