@@ -94,6 +94,12 @@ class SessionError(VtexpError):
 
 
 class SessionAborted(VtexpError):
-    """The experimenter or participant aborted the session (e.g. Escape in the window)."""
+    """The experimenter or participant aborted the session (e.g. Escape in the window).
+
+    ``played``: when a play was stopped (``play(should_stop=...)``), what the device
+    reports having played of it until then (a ``PlayReport`` with ``completed`` false;
+    None if the device reported nothing, or the stop came before the play started).
+    """
 
     exit_code = 130
+    played = None

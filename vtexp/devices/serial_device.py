@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from ..clock import REAL, Clock
-from ..errors import DeviceError, InputError, PlayInterrupted
+from ..errors import DeviceError, InputError, PlayInterrupted, SessionAborted
 from ..model import (
     DeviceInfo,
     DeviceProfile,
@@ -485,7 +485,16 @@ class SerialDevice(DeviceBase):
         start_us = link.expect(Trigger(pid, 0), Ack).t_us
         st.triggered = True
         self._play_started(start_us / 1000.0, self.clock_map.to_host_ms(start_us / 1000.0))
-        self._wait_done(link, st, schedule.duration_ms)
+        try:
+            self._wait_done(link, st, schedule.duration_ms)
+        except SessionAborted as e:         # stopped: the onsets the device reported so far
+            e.played = self._report(start_us, schedule, [
+                PlayedPulse(row=p.row, col=p.col, scheduled_onset_ms=p.onset_ms,
+                            onset_ms=(t - start_us) / 1000.0, duration_ms=p.duration_ms,
+                            level=p.level, train=p.train)
+                for p, t in zip(pulses, st.onsets) if t is not None
+            ]).model_copy(update={"completed": False})
+            raise
         if st.done is not None and st.done.reason != DoneReason.FINISHED:
             self._current = None
             if st.done.reason == DoneReason.WATCHDOG:

@@ -75,7 +75,14 @@ class SimDevice(DeviceBase):
                             duration_ms=schedule.duration_ms, pulses=played,
                             started_at_host_ms=host_start, host_clock_error_ms=0.0)
         if self.realtime and schedule.duration_ms > 0:
-            self._drive_realtime(schedule, host_start / 1000.0)
+            try:
+                self._drive_realtime(schedule, host_start / 1000.0)
+            except SessionAborted as e:     # what had started when it was stopped
+                elapsed = self.history[-1].detail
+                e.played = report.model_copy(update={
+                    "pulses": [p for p in played if p.onset_ms <= elapsed],
+                    "completed": False})
+                raise
         self.clock_ms = start + schedule.duration_ms
         self.history.append(SimEvent(start, "play", report))
         self.plays.append(report)
