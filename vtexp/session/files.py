@@ -3,6 +3,7 @@ content of its session record (``..._session.json``)."""
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import sys
@@ -133,16 +134,25 @@ def events_sidecar(lx: LoadedExperiment) -> dict:
 
 
 def environment() -> dict:
-    pkgs = {}
+    """What ran the session: vtexp, Python, the platform and the versions of the packages
+    its results depend on."""
+    return {"vtexp": __version__, "python": sys.version.split()[0],
+            "platform": platform.platform(), "machine": platform.machine(),
+            "hostname": platform.node(), "packages": dict(_packages())}
+
+
+@functools.cache
+def _packages() -> tuple[tuple[str, str], ...]:
+    """The installed versions, read once per process (reading them scans every installed
+    distribution's metadata: a few milliseconds each time)."""
+    found = []
     for name in ("numpy", "pandas", "pydantic", "PyYAML", "statsmodels", "pyserial",
                  "opencv-contrib-python-headless", "opencv-python", "psychopy"):
         try:
-            pkgs[name] = metadata.version(name)
+            found.append((name, metadata.version(name)))
         except metadata.PackageNotFoundError:
             pass
-    return {"vtexp": __version__, "python": sys.version.split()[0],
-            "platform": platform.platform(), "machine": platform.machine(),
-            "hostname": platform.node(), "packages": pkgs}
+    return tuple(found)
 
 
 def process() -> dict:
