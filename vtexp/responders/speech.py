@@ -233,18 +233,98 @@ def masking_noise(folder: Path, seconds: float = 4.0, rate: int = 22050) -> Path
     return path
 
 
-class PsychopyAudio:
-    """Plays WAV files through PsychoPy's ``sound`` (the sounddevice or PTB backend)."""
+#: How the experimenter lists the sound outputs (printed in messages: it must work as printed).
+LIST_COMMAND = "vtexp device list --audio"
 
-    def __init__(self):
+
+def output_devices(refresh: bool = True) -> list[dict]:
+    """The sound outputs PortAudio sees (through ``sounddevice``, as PsychoPy's sound does):
+    ``{"index", "name", "hostapi", "channels", "default"}`` each. ``refresh``: look again
+    (PortAudio lists the devices once, when it starts: a sound server or headphones
+    started later would be missed), unless PsychoPy already plays on a stream."""
+    try:
+        import sounddevice as sd
+    except Exception as e:          # OSError: no libportaudio2
+        raise SessionError(f"the audio mode plays sound through PortAudio, which cannot be "
+                           f"loaded ({type(e).__name__}: {e}): sudo apt-get install "
+                           "libportaudio2 (Debian/Ubuntu), brew install portaudio (macOS)"
+                           ) from None
+    if refresh and not _psychopy_streams_open():
+        sd._terminate()
+        sd._initialize()
+    default = sd.default.device[1]
+    if default is None or (isinstance(default, int) and default < 0):
+        try:
+            default = sd.query_devices(kind="output")["index"]
+        except Exception:           # PortAudio has no default output
+            default = -1
+    out = []
+    for d in sd.query_devices():
+        if d["max_output_channels"] > 0:
+            out.append({"index": d["index"], "name": d["name"],
+                        "hostapi": sd.query_hostapis(d["hostapi"])["name"],
+                        "channels": d["max_output_channels"],
+                        "default": d["index"] == default})
+    return out
+
+
+def _psychopy_streams_open() -> bool:
+    import sys
+    backend = sys.modules.get("psychopy.sound.backend_sounddevice")
+    return bool(backend is not None and len(backend.streams))
+
+
+def choose_output(device: str | None, devices: list[dict] | None = None) -> dict:
+    """The output the audio mode plays on: ``device`` (its number in the list, its name, or
+    a part of its name that only it has, any case), else the default output. A clear
+    message, naming what is missing and how to choose, if there is none."""
+    devices = output_devices() if devices is None else devices
+    how = (f"choose one with --responder window:audio,device=NAME (a part of its name, or "
+           f"its number); list them with: {LIST_COMMAND}")
+    if not devices:
+        raise SessionError("the audio mode has no sound output to play on: PortAudio finds "
+                           "no output device (no sound card, headphones or sound server such "
+                           "as PulseAudio or PipeWire). Attach headphones or start the sound "
+                           f"server, then {how}")
+    if device is None:
+        chosen = [d for d in devices if d["default"]] or devices[:1]
+        return chosen[0]
+    names = "; ".join(f"{d['index']}: {d['name']}" for d in devices)
+    if device.isdigit():
+        hit = [d for d in devices if d["index"] == int(device)]
+    else:
+        hit = [d for d in devices if d["name"].lower() == device.lower()] or \
+              [d for d in devices if device.lower() in d["name"].lower()]
+    if len(hit) == 1:
+        return hit[0]
+    if not hit:
+        raise InputError(f"no sound output {device!r} for the audio mode; the outputs are "
+                         f"{names} ({how})", key="--responder")
+    raise InputError(f"{len(hit)} sound outputs match {device!r}: "
+                     + "; ".join(f"{d['index']}: {d['name']}" for d in hit)
+                     + "; give more of the name, or the number", key="--responder")
+
+
+class PsychopyAudio:
+    """Plays WAV files through PsychoPy's ``sound`` with the sounddevice backend, on the
+    output ``device`` (see :func:`choose_output`; None: the default output). The output is
+    chosen when this is made: a computer without one is told before anything is written."""
+
+    def __init__(self, device: str | None = None):
         os.environ.setdefault("PSYCHOPYNOPACKAGES", "1")
+        self.output = choose_output(device)
         try:
             from psychopy import prefs
-            prefs.hardware["audioLib"] = ["sounddevice", "ptb"]
+            # Only sounddevice: PTB opens a stream with all of the device's channels (32
+            # on ALSA's pulse) and suspends the sound server's sink it plays into.
+            prefs.hardware["audioLib"] = ["sounddevice"]
+            prefs.hardware["audioDevice"] = self.output["name"]
             from psychopy import sound
+            from psychopy.sound import backend_sounddevice
         except Exception as e:          # no audio library, no device
             raise SessionError(f"cannot play sound for the audio mode: {type(e).__name__}: "
                                f"{e}. Is a sound card (or headphones) attached?") from None
+        backend_sounddevice.defaultOutput = self.output["index"]   # the stream's device
         self._sound = sound
         self._cache: dict[Path, object] = {}
         self._loop = None

@@ -141,12 +141,14 @@ class WindowOptions:
     audio: bool | None = None           # None: the experiment's (presentation.audio)
     language: str | None = None
     noise: bool | None = None
+    device: str | None = None           # the audio mode's sound output (None: the default)
 
     @classmethod
     def parse(cls, spec: str) -> WindowOptions:
         """``windowed``, ``fullscreen``, ``screen=N``, ``size=WxH``, ``abort=KEY``,
         ``scale=S``, ``audio``, ``audio=off``, ``lang=LANG``, ``noise=on|off``,
-        comma-separated."""
+        ``device=NAME`` (the audio mode's sound output: its number in ``vtexp device list
+        --audio``, or a part of its name), comma-separated."""
         opts: dict = {}
         for part in filter(None, (p.strip() for p in spec.split(","))):
             name, eq, value = part.partition("=")
@@ -176,10 +178,12 @@ class WindowOptions:
                 opts["language"] = value
             elif name == "noise" and value in ("on", "off"):
                 opts["noise"] = value == "on"
+            elif name == "device" and eq and value:
+                opts["device"] = value
             else:
                 raise InputError(f"unknown window option {part!r}; use windowed, fullscreen, "
                                  "screen=N, size=WxH, abort=KEY, scale=S, audio, lang=LANG, "
-                                 "noise=on|off (e.g. window:windowed,size=1024x768)",
+                                 "noise=on|off, device=NAME (e.g. window:windowed,size=1024x768)",
                                  key="--responder")
         return cls(**opts)
 
@@ -288,14 +292,19 @@ class WindowResponder:
         if self.audio_mode:
             book = phrase_book(self.language, dict(pres.phrases) if pres else None)
             name = lx.experiment.name if lx is not None else "any"
+            # The sound output first: a computer without one is told before anything is
+            # written (the dataset, the session folder, the speech cache).
+            if audio is None:
+                audio = PsychopyAudio(o.device)
             voice = Voice(name, self.language)
-            self.speech = Speech(voice, audio if audio is not None else PsychopyAudio(), book,
+            self.speech = Speech(voice, audio, book,
                                  masking_noise(voice.folder) if noise else None, clock=clock)
             if lx is not None:
                 voice.prerender(self.sentences(lx.experiment))
         mode = "fullscreen" if o.fullscreen else "windowed {}x{}".format(*o.size)
         extra = (f", scale {self.scale:g}" if self.scale != 1 else "") + (
             f", audio {self.language}" + (", masking noise" if noise else "")
+            + (f", sound output {audio.output['name']}" if hasattr(audio, "output") else "")
             if self.audio_mode else "")
         self.description = f"window ({mode}, screen {o.screen}{extra})"
 
