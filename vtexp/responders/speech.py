@@ -340,6 +340,10 @@ class PsychopyAudio:
                                    f"{type(e).__name__}: {e}") from None
         return snd
 
+    def prepare(self, path: Path) -> None:
+        """Load the clip (and open the output's stream, the first time)."""
+        self._get(path)
+
     def play(self, path: Path) -> None:
         snd = self._get(path)
         snd.stop()
@@ -407,8 +411,11 @@ class Speech:
             self.current = None
         if self.current is None and self.queue:
             text, path = self.queue.pop(0)
-            self.audio.play(path)
+            prepare = getattr(self.audio, "prepare", None)
+            if prepare is not None:     # loaded first: the start logged is when it plays
+                prepare(path)
             start = self.clock.now()
+            self.audio.play(path)
             length = getattr(self.audio, "duration", wav_duration_s)(path)
             self.current = (text, path, start, start + length)
 

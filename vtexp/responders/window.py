@@ -131,6 +131,10 @@ class Button:
         return abs(pos[0] - self.x) <= self.w / 2 and abs(pos[1] - self.y) <= self.h / 2
 
 
+#: How long the masking noise plays before each stimulus starts (s).
+NOISE_LEAD_S = 0.15
+
+
 @dataclass(frozen=True)
 class WindowOptions:
     fullscreen: bool = True
@@ -483,7 +487,17 @@ class WindowResponder:
             lines = ([self.speech.phrase("practice")] if trial is not None and trial.practice
                      else []) + [self.speech.phrase("ready")]
             self._say(*lines, wait=True)        # nothing is heard while the stimulus plays
+            self._noise_first()
+
+    def _noise_first(self) -> None:
+        """Start the masking noise NOISE_LEAD_S before the stimulus: the sound output's
+        latency (measured through a sound server, tests/test_audio_sound_server.py) put
+        its first samples a few milliseconds after the stimulus's start otherwise."""
+        if self.speech is not None and self.speech.noise is not None:
             self.speech.start_noise()
+            until = time.perf_counter() + NOISE_LEAD_S
+            while time.perf_counter() < until:
+                self._frame(collect=False)
 
     def stimulus_played(self, trial: Trial, report) -> None:
         if self.speech is not None:
@@ -743,7 +757,7 @@ class WindowResponder:
                     self._show_ready(trial)
                     if self.speech is not None:
                         self._say(self.speech.phrase("ready"), wait=True)
-                        self.speech.start_noise()
+                        self._noise_first()
                     replay()
                     show(entering=True)
                     speak_question()
