@@ -412,8 +412,9 @@ def test_the_audio_mode_heard_through_a_sound_server(pulse, speech_cache, xvfb, 
 
 
 def test_no_sound_output_is_one_message_before_anything_is_written(monkeypatch, tmp_path,
-                                                                   speech_cache, cli):
+                                                                   cli):
     from vtexp.responders import speech
+    monkeypatch.setenv("VTEXP_SPEECH_CACHE", str(tmp_path / "speech"))
     monkeypatch.setattr(speech, "output_devices", lambda refresh=True: [])
     exp = write_experiment(tmp_path, EXPERIMENT)
     res = cli("run", exp, "-p", "01", "--responder", "window:audio,windowed",
@@ -424,7 +425,7 @@ def test_no_sound_output_is_one_message_before_anything_is_written(monkeypatch, 
     assert "no sound output" in lines[0] and "window:audio,device=NAME" in lines[0]
     assert "vtexp device list --audio" in lines[0]
     assert not (tmp_path / "data").exists()
-    assert not any(Path(os.environ["VTEXP_SPEECH_CACHE"]).iterdir())
+    assert not (tmp_path / "speech").exists()
     # The command it names works as printed.
     listed = cli("device", "list", "--audio")
     assert listed.returncode == 0 and "no sound output found" in listed.stdout

@@ -305,6 +305,11 @@ class WindowResponder:
                                  masking_noise(voice.folder) if noise else None, clock=clock)
             if lx is not None:
                 voice.prerender(self.sentences(lx.experiment))
+            prepare = getattr(audio, "prepare", None)
+            if prepare is not None and self.speech.noise is not None:
+                # The output's stream opened now: a stream opened by the first clip lost
+                # that clip's first ~100 ms through a sound server.
+                prepare(self.speech.noise)
         mode = "fullscreen" if o.fullscreen else "windowed {}x{}".format(*o.size)
         extra = (f", scale {self.scale:g}" if self.scale != 1 else "") + (
             f", audio {self.language}" + (", masking noise" if noise else "")
