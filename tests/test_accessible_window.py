@@ -219,6 +219,45 @@ def _session(study, audio, display, tmp_path):
     return r, captured, plays, lx, res
 
 
+def test_a_clip_the_output_plays_late_holds_the_next_one_back():
+    """A clip whose length has passed while its output still plays it (the output ran dry
+    on a busy computer and plays late) is not over: the next one waits for the output, so
+    that two are never heard at once; an output that never finishes holds it MAX_LATE_S."""
+    from vtexp.clock import VirtualClock
+    from vtexp.responders.speech import MAX_LATE_S, Speech
+    clock = VirtualClock()
+
+    class Voice:
+        def clip(self, text):
+            return Path(f"{text}.wav")
+
+    class LateOutput:
+        done_at = {"a": 1.5, "b": float("inf"), "c": 1.0}     # each clip lasts 1 s
+
+        def __init__(self):
+            self.started: dict[str, float] = {}
+
+        def duration(self, path):
+            return 1.0
+
+        def play(self, path):
+            self.started[path.stem] = clock.now()
+
+        def playing(self, path):
+            return clock.now() < self.started[path.stem] + self.done_at[path.stem] - 1e-9
+
+    out = LateOutput()
+    sp = Speech(Voice(), out, {}, clock=clock)
+    sp.say("a", "b", "c")
+    while sp.busy():
+        clock.sleep(0.01)
+    assert out.started["a"] == 0.0
+    assert out.started["b"] == pytest.approx(1.5, abs=0.011)
+    assert out.started["c"] == pytest.approx(1.5 + 1.0 + MAX_LATE_S, abs=0.011)
+    assert [(p.text, round(p.end - p.start, 1)) for p in sp.played] == \
+        [("a", 1.5), ("b", 1.0 + MAX_LATE_S), ("c", 1.0)]
+
+
 @pytest.mark.parametrize("study", STUDIES)
 def test_every_question_answered_with_real_keys_on_screen(study, display, tmp_path):
     r, _, _, _, res = _session(study, False, display, tmp_path)

@@ -305,6 +305,14 @@ def choose_output(device: str | None, devices: list[dict] | None = None) -> dict
                      + "; give more of the name, or the number", key="--responder")
 
 
+#: Frames per block of the output's stream (PsychoPy's default is 128: 6 ms at espeak-ng's
+#: 22050 Hz). Each block is filled by a Python callback, which waits for the GIL while the
+#: window draws text: 128-frame blocks ran dry and the prompts were heard broken up
+#: (tests/test_audio_sound_server.py, on a busy computer). 512 frames are 23 ms a block;
+#: the output's latency (about two blocks) is what the masking noise's lead covers.
+BLOCK_FRAMES = 512
+
+
 class PsychopyAudio:
     """Plays WAV files through PsychoPy's ``sound`` with the sounddevice backend, on the
     output ``device`` (see :func:`choose_output`; None: the default output). The output is
@@ -334,7 +342,8 @@ class PsychopyAudio:
         snd = self._cache.get(key)
         if snd is None:
             try:
-                snd = self._cache[key] = self._sound.Sound(str(path), loops=loops)
+                snd = self._cache[key] = self._sound.Sound(str(path), loops=loops,
+                                                           blockSize=BLOCK_FRAMES)
             except Exception as e:
                 raise SessionError(f"cannot play {path.name} for the audio mode: "
                                    f"{type(e).__name__}: {e}") from None
@@ -349,6 +358,19 @@ class PsychopyAudio:
         snd.stop()
         snd.play()
 
+    def playing(self, path: Path) -> bool:
+        """Whether the output still has samples of the clip to play (False once its last
+        block was handed to the output)."""
+        snd = self._cache.get((path, 0))
+        return bool(snd is not None and snd.isPlaying)
+
+    @property
+    def latency_s(self) -> float:
+        """The output's latency as PortAudio reports it (0 before its stream opened)."""
+        from psychopy.sound import backend_sounddevice
+        return max((float(getattr(st, "latency", 0.0) or 0.0)
+                    for st in backend_sounddevice.streams.values()), default=0.0)
+
     def stop(self, path: Path) -> None:
         snd = self._cache.get((path, 0))
         if snd is not None:
@@ -362,6 +384,12 @@ class PsychopyAudio:
         if self._loop is not None:
             self._loop.stop()
             self._loop = None
+
+
+#: How long a clip may go on playing past its length (its output ran dry and plays it
+#: late) before the next one starts anyway: an output that stopped altogether does not
+#: keep the session waiting.
+MAX_LATE_S = 2.0
 
 
 @dataclass
@@ -390,6 +418,7 @@ class Speech:
         self.played: list[Played] = []
         self.noise_on: list[tuple[float, float]] = []     # (start, stop) of masking noise
         self._noise_since: float | None = None
+        self._late = False                  # the clip on now outlasted its length
 
     def phrase(self, name: str, /, **values) -> str:
         return self.book[name].format(**values)
@@ -407,8 +436,11 @@ class Speech:
         now = self.clock.now()
         if self.current is not None and now >= self.current[3]:
             text, path, start, end = self.current
-            self.played.append(Played(text, path, start, end))
-            self.current = None
+            if self._still_playing() and now < end + MAX_LATE_S:
+                self._late = True               # it ends when the output is done with it
+            else:
+                self.played.append(Played(text, path, start, now if self._late else end))
+                self.current, self._late = None, False
         if self.current is None and self.queue:
             text, path = self.queue.pop(0)
             prepare = getattr(self.audio, "prepare", None)
@@ -418,6 +450,13 @@ class Speech:
             self.audio.play(path)
             length = getattr(self.audio, "duration", wav_duration_s)(path)
             self.current = (text, path, start, start + length)
+
+    def _still_playing(self) -> bool:
+        """The output has not played the clip's last samples yet, though its length has
+        passed (its stream ran dry on a busy computer and plays late): the next clip
+        waits, so that two are never heard at once."""
+        playing = getattr(self.audio, "playing", None)
+        return bool(playing is not None and playing(self.current[1]))
 
     def busy(self) -> bool:
         self.update()
@@ -429,7 +468,7 @@ class Speech:
             text, path, start, _ = self.current
             self.audio.stop(path)
             self.played.append(Played(text, path, start, self.clock.now()))
-            self.current = None
+            self.current, self._late = None, False
         self.queue.clear()
 
     def start_noise(self) -> None:
