@@ -131,7 +131,8 @@ class Button:
         return abs(pos[0] - self.x) <= self.w / 2 and abs(pos[1] - self.y) <= self.h / 2
 
 
-#: How long the masking noise plays before each stimulus starts (s).
+#: How long the masking noise is heard before each stimulus starts (s), on top of the
+#: sound output's latency (the time its samples take to reach the headphones).
 NOISE_LEAD_S = 0.15
 
 
@@ -495,12 +496,13 @@ class WindowResponder:
             self._noise_first()
 
     def _noise_first(self) -> None:
-        """Start the masking noise NOISE_LEAD_S before the stimulus: the sound output's
-        latency (measured through a sound server, tests/test_audio_sound_server.py) put
-        its first samples a few milliseconds after the stimulus's start otherwise."""
+        """Start the masking noise NOISE_LEAD_S plus the output's latency before the
+        stimulus: its first samples were heard a few milliseconds after the stimulus's
+        start otherwise (measured through a sound server, tests/test_audio_sound_server.py)."""
         if self.speech is not None and self.speech.noise is not None:
             self.speech.start_noise()
-            until = time.perf_counter() + NOISE_LEAD_S
+            lead = NOISE_LEAD_S + getattr(self.speech.audio, "latency_s", 0.0)
+            until = time.perf_counter() + lead
             while time.perf_counter() < until:
                 self._frame(collect=False)
 
@@ -749,8 +751,9 @@ class WindowResponder:
                 self._say(*self.question_sentences(q), *extra)
 
         show(entering=True)
-        speak_question()
         win.callOnFlip(self.clock.reset)        # the time origin: the flip that shows it
+        self._first_frame()
+        speak_question()
         while True:
             for key, t, button in self._frame():
                 value = button.value if button is not None else None
@@ -765,8 +768,9 @@ class WindowResponder:
                         self._noise_first()
                     replay()
                     show(entering=True)
-                    speak_question()
                     win.callOnFlip(self.clock.reset)
+                    self._first_frame()
+                    speak_question()
                     break
                 if value == "repeat" or key == REPEAT_KEY:
                     speak_question()
@@ -849,6 +853,7 @@ class WindowResponder:
     def _confirm(self, q, answer: str, show) -> None:
         """The answer is shown taken (its button filled) and said back, before moving on."""
         show(answered=answer)
+        self._first_frame()
         if self.speech is not None:
             self._say(self.speech.phrase("answer_taken", answer=self.spoken_answer(q, answer)))
         until = self._core.getTime() + CONFIRM_S
@@ -858,6 +863,7 @@ class WindowResponder:
     def _wait_to_continue(self, name: str, text: str, hint: str, abort: bool = True,
                           spoken: Sequence[str] = (), listen_while_speaking: bool = True) -> None:
         self._message_screen(name, text, hint)
+        self._first_frame()
         if self.speech is not None and spoken:
             self._say(*spoken)
             if not listen_while_speaking:       # the end: said in full before it closes
@@ -873,6 +879,14 @@ class WindowResponder:
                     if self.speech is not None:
                         self.speech.stop()
                     return
+
+    def _first_frame(self) -> None:
+        """Draw the screen just entered once, before anything is said over it: its first
+        drawing makes its text (a quarter of a second for a question screen on a busy
+        computer), holding the GIL that the sound output's callback needs, and a clip
+        started before it was heard broken up. Keys wait for the screen's own loop."""
+        if self.speech is not None:
+            self._frame(collect=False)
 
     def _show_ready(self, trial: Trial | None = None) -> None:
         self.open()
