@@ -306,11 +306,13 @@ def choose_output(device: str | None, devices: list[dict] | None = None) -> dict
 
 
 #: Frames per block of the output's stream (PsychoPy's default is 128: 6 ms at espeak-ng's
-#: 22050 Hz). Each block is filled by a Python callback, which waits for the GIL while the
-#: window draws text: 128-frame blocks ran dry and the prompts were heard broken up
-#: (tests/test_audio_sound_server.py, on a busy computer). 512 frames are 23 ms a block;
-#: the output's latency (about two blocks) is what the masking noise's lead covers.
-BLOCK_FRAMES = 512
+#: 22050 Hz). Each block is filled by a Python callback, which needs the GIL and the CPU:
+#: on a busy computer (tests/test_audio_sound_server.py run beside other tests) the
+#: process went unscheduled for 0.1 s and more, 128- and 512-frame blocks ran dry and the
+#: prompts were heard broken up. 2048 frames are 93 ms a block; the output's latency,
+#: about two blocks, delays what is said by a fifth of a second, and the masking noise's
+#: lead covers it.
+BLOCK_FRAMES = 2048
 
 
 class PsychopyAudio:
@@ -366,9 +368,11 @@ class PsychopyAudio:
 
     @property
     def latency_s(self) -> float:
-        """The output's latency as PortAudio reports it (0 before its stream opened)."""
+        """At most how long a clip takes from :meth:`play` to the headphones: the output's
+        latency as PortAudio reports it, and a block (a clip starts with the next block
+        the stream asks for); 0 before the stream opened."""
         from psychopy.sound import backend_sounddevice
-        return max((float(getattr(st, "latency", 0.0) or 0.0)
+        return max((float(getattr(st, "latency", 0.0) or 0.0) + st.blockSize / st.sampleRate
                     for st in backend_sounddevice.streams.values()), default=0.0)
 
     def stop(self, path: Path) -> None:

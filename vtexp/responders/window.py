@@ -39,6 +39,7 @@ neither); its console log shows errors only.
 from __future__ import annotations
 
 import atexit
+import gc
 import os
 import shutil
 import sys
@@ -284,6 +285,7 @@ class WindowResponder:
         self._stims: dict[tuple, object] = {}
         self._practice_seen = False
         self._paused = False
+        self._frozen = False                  # see _freeze_garbage
         self.entered: list[str] = []          # every screen shown, in order
         pres = getattr(getattr(lx, "experiment", None), "presentation", None)
         o = self.options
@@ -334,6 +336,7 @@ class WindowResponder:
                                    "attached (DISPLAY set), and does the screen exist?") from None
             if self.lx is not None:
                 self.check_layouts(self.lx.experiment)
+            self._freeze_garbage()
         if self._mouse is None:
             self._mouse = self._event.Mouse(win=self.win, visible=True)
         return self.win
@@ -343,10 +346,24 @@ class WindowResponder:
         w, h = self.open().size
         return w / h
 
+    def _freeze_garbage(self) -> None:
+        """In the audio mode, keep the garbage collector off everything made so far
+        (PsychoPy, the window, the rendered layouts: a quarter of a million objects).
+        A full collection looked at all of them while holding the GIL, for 0.1-0.4 s on a
+        busy computer, and the sound output's callback, which needs the GIL, ran dry
+        meanwhile: the prompt being said was heard broken up. Undone in :meth:`close`."""
+        if self.speech is not None and not self._frozen:
+            gc.collect()
+            gc.freeze()
+            self._frozen = True
+
     def close(self) -> None:
         if self.speech is not None:
             self.speech.stop()
             self.speech.stop_noise()
+        if self._frozen:
+            gc.unfreeze()               # collectable again, once the window has gone
+            self._frozen = False
         if self.win is not None:
             self.win.close()
         self.win = self._mouse = None
