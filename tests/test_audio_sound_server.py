@@ -203,6 +203,32 @@ def speech_cache(tmp_path_factory):
         os.environ["VTEXP_SPEECH_CACHE"] = old
 
 
+class Underflows(list):
+    """The monotonic times at which the sound output's stream was found run dry (PortAudio's
+    output-underflow flag, as the stream's callback receives it): on a computer so busy
+    that the process went unscheduled for longer than the output's buffer, blocks of
+    the clip then playing were lost. Recorded for the streams opened while it is
+    installed (:meth:`install`, on ``sounddevice.OutputStream``, which PsychoPy's
+    backend opens its stream with)."""
+
+    def install(self, monkeypatch) -> Underflows:
+        import sounddevice as sd
+        init = sd.OutputStream.__init__
+        times = self
+
+        def counting_init(stream, *args, callback=None, **kwargs):
+            if callback is not None:
+                inner = callback
+
+                def callback(outdata, frames, t, status):
+                    if status.output_underflow:
+                        times.append(time.monotonic())
+                    return inner(outdata, frames, t, status)
+            init(stream, *args, callback=callback, **kwargs)
+        monkeypatch.setattr(sd.OutputStream, "__init__", counting_init)
+        return self
+
+
 class Recorder:
     """``parec`` on the sink's monitor (mono, 16 bit, RATE), raw into a file; a ``pacat``
     of silence keeps the sink running, so that the recording has no gaps. ``t0``: the
@@ -491,13 +517,14 @@ def alarm(seconds: float, what: str):
         signal.signal(signal.SIGALRM, old)
 
 
-def _a_session_recorded(display: str, tmp_path: Path, cli):
+def _a_session_recorded(display: str, tmp_path: Path, cli, monkeypatch, underflows):
     """A session of EXPERIMENT run in the audio mode on the sink, answered with key 1, and
     the sink's monitor recorded meanwhile: (recording, recorder, speech, window, the
     stimuli's (start, end) on the monotonic clock)."""
     from vtexp.responders.window import WindowOptions, WindowResponder
     listed = cli("device", "list", "--audio")
     assert listed.returncode == 0 and " pulse " in listed.stdout, listed.stdout
+    underflows.install(monkeypatch)
     lx = load_experiment(write_experiment(tmp_path, EXPERIMENT))
     r = WindowResponder(WindowOptions(fullscreen=False, size=(1280, 800), device="pulse"),
                         lx=lx)
@@ -538,11 +565,22 @@ def _a_session_recorded(display: str, tmp_path: Path, cli):
     return x, rec, sp, r, plays
 
 
+#: How alike a clip and the recording where it was found must be (normalised correlation,
+#: 1: the same samples): a clip played whole is found at 0.99 or more. Where the output
+#: ran dry while it played (Underflows) blocks of it were lost: 0.72 was measured on a
+#: computer whose CPUs were contended 90 % of the time. A clip searched for where another
+#: was heard gives 0.44 at most, 0.58 for a word of a longer clip ('square.' in '1 square.
+#: 2 circle.'); two clips heard at once are caught apart (their spans overlap).
+HEARD_WHOLE, HEARD_WITH_DROPOUTS = 0.9, 0.6
+
+
 def test_the_audio_mode_heard_through_a_sound_server(pulse, speech_cache, xvfb, tmp_path,
-                                                     cli):
+                                                     cli, monkeypatch):
     t_start = time.monotonic()
+    underflows = Underflows()
     with alarm(SESSION_DEADLINE_S, f"the test did not end within {SESSION_DEADLINE_S:.0f} s"):
-        x, rec, sp, r, plays = _a_session_recorded(xvfb, tmp_path, cli)
+        x, rec, sp, r, plays = _a_session_recorded(xvfb, tmp_path, cli, monkeypatch,
+                                                   underflows)
     assert len(plays) == TRIALS and len(sp.noise_on) == TRIALS
     assert r.entered.count("ready") == TRIALS and r.entered[-1] == "end", r.entered
 
@@ -563,6 +601,11 @@ def test_the_audio_mode_heard_through_a_sound_server(pulse, speech_cache, xvfb, 
     corrs = [f[2] for f in found]
     starts = [f[1] for f in found]
     heard = [(a / RATE, b / RATE) for *_, a, b in found]
+    # The clips during which the output ran dry (blocks of them were lost, or came late).
+    latency_s = sp.audio.latency_s
+    starved = [any(p.start - 0.1 <= u <= p.end + latency_s + 0.1 for u in underflows)
+               for p in sp.played]
+    least = [HEARD_WITH_DROPOUTS if dry else HEARD_WHOLE for dry in starved]
 
     # Energy: every 10 ms frame above -40 dBFS is inside a clip found or the noise (from
     # its start to its stop and the output's latency, when its last samples are heard).
@@ -572,8 +615,8 @@ def test_the_audio_mode_heard_through_a_sound_server(pulse, speech_cache, xvfb, 
     loud = rms > 10 ** (-40 / 20)
     noise_rec = [((a - rec.t0), (b - rec.t0)) for a, b in sp.noise_on]
     segments = _segments(loud, frame)
-    latency_s = sp.audio.latency_s
-    spans = heard + [(s, e + latency_s) for s, e in noise_rec]
+    spans = [(a, b + (0.3 if dry else 0.0)) for (a, b), dry in zip(heard, starved)] + \
+        [(s, e + latency_s) for s, e in noise_rec]
     t = np.arange(loud.size) * frame
     covered = np.zeros(loud.size, bool)
     for a, b in spans:
@@ -607,8 +650,10 @@ def test_the_audio_mode_heard_through_a_sound_server(pulse, speech_cache, xvfb, 
     wall = time.monotonic() - t_start
     lines = [
         f"recording: {x.size / RATE:.2f} s at {RATE} Hz from {SINK}.monitor",
-        f"clips said by the session: {len(sp.played)}; found in the recording (correlation "
-        f"> 0.9): {sum(c > 0.9 for c in corrs)}; correlation min {min(corrs):.3f}",
+        f"clips said by the session: {len(sp.played)}; found in the recording whole "
+        f"(correlation > {HEARD_WHOLE}): {sum(c > HEARD_WHOLE for c in corrs)}; correlation "
+        f"min {min(corrs):.3f}",
+        f"output ran dry (underflows): {len(underflows)}, during {sum(starved)} clips",
         f"speech segments by energy (not noise): {len(speech)}",
         f"output latency (heard - logged start): {min(latency):.1f}-{max(latency):.1f} ms",
         f"stimuli: {len(plays)}, "
@@ -619,15 +664,19 @@ def test_the_audio_mode_heard_through_a_sound_server(pulse, speech_cache, xvfb, 
         f"peak level: {peak:.3f} of full scale ({20 * np.log10(peak):.1f} dBFS)",
         f"test wall time so far: {wall:.1f} s",
     ] + [f"  {k / RATE:7.3f} s  heard {a / RATE:7.3f}-{b / RATE:7.3f} s  r={corr:.3f}  "
-         f"{p.text}" for p, k, corr, a, b in found]
+         f"{p.text}" + ("  (output ran dry)" if dry else "")
+         for (p, k, corr, a, b), dry in zip(found, starved)]
     print("\n" + "\n".join(lines))
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "audio_sound_server.txt").write_text("\n".join(lines) + "\n")
     assert [p.text for p in sp.played] == SAID
-    heard_clips = [p.text for p, k, corr, *_ in found if corr > 0.9]
+    heard_clips = [p.text for (p, k, corr, *_), lo in zip(found, least) if corr > lo]
     assert heard_clips == [p.text for p in sp.played], \
-        [(p.text, round(corr, 3)) for p, k, corr, *_ in found]
+        [(p.text, round(corr, 3), lo) for (p, k, corr, *_), lo in zip(found, least)]
     assert starts == sorted(starts) and len(set(starts)) == len(starts), starts
+    together = [(p.text, q.text) for (p, *_, b), (q, _, _, a, _) in zip(found, found[1:])
+                if a < b]
+    assert not together, f"two clips heard at once: {together}"
     assert not overlaps, f"speech during a stimulus: {overlaps}"
     assert not unmasked, f"no sound all through the stimulus: {unmasked}"
     assert min(leads) > 0 and min(lags) > 0, (leads, lags)
