@@ -7,8 +7,10 @@ session in the audio mode (two trials) runs in a window on Xvfb, answered with r
 presses. From the recording alone:
 
 - every clip the session says it played is heard, in order, near where the session says
-  it played it (each rendered clip found in the recording by cross-correlation), and
-  nothing else is heard outside the masking noise (energy segments);
+  it played it, no two at once (each rendered clip found in the recording by
+  cross-correlation: whole, or, where PortAudio reported the output run dry while it
+  played, at its place with blocks missing), and nothing else is heard outside the
+  masking noise (energy, frame by frame);
 - no speech overlaps a stimulus (the device's play, as timed around it);
 - the masking noise starts before each stimulus and ends after it;
 - nothing clips (peak below full scale).
