@@ -147,6 +147,7 @@ def _session(study, audio, display, tmp_path):
     questions = lx.experiment.asked()
     kb = XKeyboard(display)
     problems: list[str] = []
+    ended = threading.Event()            # set when the session is over, however it ended
 
     def speaking(text):
         sp = r.speech
@@ -184,15 +185,24 @@ def _session(study, audio, display, tmp_path):
             if not wait_for(lambda: r.screen == "end" and quiet(r)):
                 problems.append(f"no end screen (on {r.screen})")
                 return
-            time.sleep(0.1)
-            kb.press("space")
+            # Space until the window closes: a press made just before the end screen
+            # listened is forgotten by it, and the session would wait for ever.
+            deadline = time.monotonic() + 30
+            while not ended.is_set() and r.win is not None:
+                if time.monotonic() > deadline:
+                    problems.append("the end screen did not close on space")
+                    return
+                time.sleep(0.1)
+                kb.press("space")
+                wait_for(lambda: ended.is_set() or r.win is None, timeout=1.0)
         except Exception as e:           # a mistake in the script fails the test, no hang
             problems.append(repr(e))
         finally:
             kb.close()
-            if problems:                 # end the session rather than hang the test
-                from psychopy import event
-                event._keyBuffer.append(("escape", 0, 0.0))
+            if problems:                 # end the session rather than hang the test: Escape
+                from psychopy import event     # until it has ended (a screen clears the
+                while not ended.wait(0.5):     # keys pressed before it listened)
+                    event._keyBuffer.append(("escape", 0, 0.0))
 
     plays: list[tuple[float, float]] = []
     with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
@@ -211,6 +221,7 @@ def _session(study, audio, display, tmp_path):
                               SessionOptions(participant="01", data_dir=tmp_path / "data",
                                              max_trials=2))
         finally:
+            ended.set()
             thread.join(30)
             assert not problems, problems
     beh = pd.read_csv(res.paths.beh_tsv, sep="\t", dtype=str, keep_default_na=False)
