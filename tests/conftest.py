@@ -25,10 +25,9 @@ def pytest_addoption(parser):
 #: the order collected, and a long file handed out last keeps the run waiting for it
 #: alone. Alphabetical order put the participant window's 40 s near the end.
 LONGEST_FIRST = ("test_cli.py", "test_accessible_window.py", "test_psychopy_builder.py",
-                 "test_analysis_report.py",
-                 "test_resume_safety.py", "test_window.py", "test_live.py",
-                 "test_firmware_pins.py", "test_live_preview.py", "test_conform.py",
-                 "test_camera_trials.py",
+                 "test_analysis_report.py", "test_resume_safety.py", "test_window.py",
+                 "test_audio_sound_server.py", "test_live.py", "test_firmware_pins.py",
+                 "test_live_preview.py", "test_conform.py", "test_camera_trials.py",
                  "test_observer.py", "test_portable.py", "test_coding_limits.py",
                  "test_session.py", "test_cluster.py", "test_report_defects.py",
                  "test_height_contours.py", "test_live_firmware.py")
