@@ -32,7 +32,7 @@ $(VENV)/.test: $(VENV)/.core
 GUI_DEBS := xvfb libgl1-mesa-dri libglu1-mesa libxxf86vm1 libxinerama1 libxi6 libxrandr2 \
             libxcursor1 fontconfig fonts-dejavu-core
 # The audio mode speaks with espeak-ng and plays through PsychoPy's sound (PortAudio).
-AUDIO_DEBS := espeak-ng libportaudio2
+AUDIO_DEBS := espeak-ng libportaudio2 pulseaudio pulseaudio-utils libasound2-plugins alsa-utils
 # The reference firmware (firmware/): avr-gcc and avr-libc build what a lab flashes; the
 # tests run that .elf on an emulated ATmega2560 (libsimavr, through vtexp-simavr).
 FIRMWARE_DEBS := gcc-avr avr-libc binutils-avr libsimavr-dev libelf-dev pkg-config make gcc

@@ -25,10 +25,9 @@ def pytest_addoption(parser):
 #: the order collected, and a long file handed out last keeps the run waiting for it
 #: alone. Alphabetical order put the participant window's 40 s near the end.
 LONGEST_FIRST = ("test_cli.py", "test_accessible_window.py", "test_psychopy_builder.py",
-                 "test_analysis_report.py",
-                 "test_resume_safety.py", "test_window.py", "test_live.py",
-                 "test_firmware_pins.py", "test_live_preview.py", "test_conform.py",
-                 "test_camera_trials.py",
+                 "test_analysis_report.py", "test_resume_safety.py", "test_window.py",
+                 "test_audio_sound_server.py", "test_live.py", "test_firmware_pins.py",
+                 "test_live_preview.py", "test_conform.py", "test_camera_trials.py",
                  "test_observer.py", "test_portable.py", "test_coding_limits.py",
                  "test_session.py", "test_cluster.py", "test_report_defects.py",
                  "test_height_contours.py", "test_live_firmware.py")
@@ -105,6 +104,15 @@ def minimal_yaml() -> str:
     return MINIMAL
 
 
+def dies_with_us(command: list[str]) -> list[str]:
+    """``command`` run so that the system kills it when this process ends, however it ends
+    (``setpriv --pdeathsig KILL``, util-linux; unchanged where there is no setpriv): a test
+    run killed in the middle leaves no X server or sound server behind. Start it from the
+    main thread: the signal follows the thread that started it."""
+    exe = shutil.which("setpriv")
+    return [exe, "--pdeathsig", "KILL", *command] if exe else list(command)
+
+
 @contextlib.contextmanager
 def start_xvfb(first: int, size: str):
     """A virtual X server on the first free display number from ``first`` (40 tried),
@@ -116,7 +124,8 @@ def start_xvfb(first: int, size: str):
     n = next(n for n in range(first, first + 40)
              if not Path(f"/tmp/.X{n}-lock").exists()
              and not Path(f"/tmp/.X11-unix/X{n}").exists())
-    proc = subprocess.Popen([exe, f":{n}", "-screen", "0", size, "-nolisten", "tcp"],
+    proc = subprocess.Popen(dies_with_us([exe, f":{n}", "-screen", "0", size, "-nolisten",
+                                          "tcp"]),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 20
     while not Path(f"/tmp/.X11-unix/X{n}").exists():
@@ -128,7 +137,11 @@ def start_xvfb(first: int, size: str):
         yield f":{n}"
     finally:
         proc.terminate()
-        proc.wait(10)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
 
 
 def worker_number() -> int:

@@ -147,6 +147,7 @@ def _session(study, audio, display, tmp_path):
     questions = lx.experiment.asked()
     kb = XKeyboard(display)
     problems: list[str] = []
+    ended = threading.Event()            # set when the session is over, however it ended
 
     def speaking(text):
         sp = r.speech
@@ -184,15 +185,24 @@ def _session(study, audio, display, tmp_path):
             if not wait_for(lambda: r.screen == "end" and quiet(r)):
                 problems.append(f"no end screen (on {r.screen})")
                 return
-            time.sleep(0.1)
-            kb.press("space")
+            # Space until the window closes: a press made just before the end screen
+            # listened is forgotten by it, and the session would wait for ever.
+            deadline = time.monotonic() + 30
+            while not ended.is_set() and r.win is not None:
+                if time.monotonic() > deadline:
+                    problems.append("the end screen did not close on space")
+                    return
+                time.sleep(0.1)
+                kb.press("space")
+                wait_for(lambda: ended.is_set() or r.win is None, timeout=1.0)
         except Exception as e:           # a mistake in the script fails the test, no hang
             problems.append(repr(e))
         finally:
             kb.close()
-            if problems:                 # end the session rather than hang the test
-                from psychopy import event
-                event._keyBuffer.append(("escape", 0, 0.0))
+            if problems:                 # end the session rather than hang the test: Escape
+                from psychopy import event     # until it has ended (a screen clears the
+                while not ended.wait(0.5):     # keys pressed before it listened)
+                    event._keyBuffer.append(("escape", 0, 0.0))
 
     plays: list[tuple[float, float]] = []
     with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
@@ -211,12 +221,52 @@ def _session(study, audio, display, tmp_path):
                               SessionOptions(participant="01", data_dir=tmp_path / "data",
                                              max_trials=2))
         finally:
+            ended.set()
             thread.join(30)
             assert not problems, problems
     beh = pd.read_csv(res.paths.beh_tsv, sep="\t", dtype=str, keep_default_na=False)
     got = [list(beh[beh["trial"] == str(t)]["answer"]) for t in (1, 2)]
     assert got == expected, (study, audio, got)
     return r, captured, plays, lx, res
+
+
+def test_a_clip_the_output_plays_late_holds_the_next_one_back():
+    """A clip whose length has passed while its output still plays it (the output ran dry
+    on a busy computer and plays late) is not over: the next one waits for the output, so
+    that two are never heard at once; an output that never finishes holds it MAX_LATE_S."""
+    from vtexp.clock import VirtualClock
+    from vtexp.responders.speech import MAX_LATE_S, Speech
+    clock = VirtualClock()
+
+    class Voice:
+        def clip(self, text):
+            return Path(f"{text}.wav")
+
+    class LateOutput:
+        done_at = {"a": 1.5, "b": float("inf"), "c": 1.0}     # each clip lasts 1 s
+
+        def __init__(self):
+            self.started: dict[str, float] = {}
+
+        def duration(self, path):
+            return 1.0
+
+        def play(self, path):
+            self.started[path.stem] = clock.now()
+
+        def playing(self, path):
+            return clock.now() < self.started[path.stem] + self.done_at[path.stem] - 1e-9
+
+    out = LateOutput()
+    sp = Speech(Voice(), out, {}, clock=clock)
+    sp.say("a", "b", "c")
+    while sp.busy():
+        clock.sleep(0.01)
+    assert out.started["a"] == 0.0
+    assert out.started["b"] == pytest.approx(1.5, abs=0.011)
+    assert out.started["c"] == pytest.approx(1.5 + 1.0 + MAX_LATE_S, abs=0.011)
+    assert [(p.text, round(p.end - p.start, 1)) for p in sp.played] == \
+        [("a", 1.5), ("b", 1.0 + MAX_LATE_S), ("c", 1.0)]
 
 
 @pytest.mark.parametrize("study", STUDIES)

@@ -33,7 +33,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     dev = sub.add_parser("device", help="list, check, monitor or emulate tactile devices")
     ds = dev.add_subparsers(dest="device_command", metavar="DEVICE_COMMAND", required=True)
 
-    s = ds.add_parser("list", help="serial ports found on this computer")
+    s = ds.add_parser("list", help="serial ports found on this computer (--audio: sound "
+                                   "outputs)")
+    s.add_argument("--audio", action="store_true",
+                   help="list the sound outputs the participant window's audio mode can play "
+                        "on instead (chosen with --responder window:audio,device=NAME)")
     s.set_defaults(func=cmd_list)
 
     s = ds.add_parser("check", help="handshake, latency, and each actuator in turn")
@@ -109,6 +113,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 # --------------------------------------------------------------------------- list
 
 def cmd_list(args: argparse.Namespace) -> int:
+    if getattr(args, "audio", False):
+        return _list_audio()
     from serial.tools import list_ports
 
     ports = sorted(list_ports.comports(), key=lambda p: p.device)
@@ -124,6 +130,25 @@ def cmd_list(args: argparse.Namespace) -> int:
         out("No hardware? 'vtexp device emulate --profile pad_20x20' serves an emulated one.")
     else:                   # Windows: the emulator needs a pseudo-terminal
         out("No hardware? 'vtexp run ... --device sim' runs a session on the simulated one.")
+    return 0
+
+
+def _list_audio() -> int:
+    """The sound outputs PortAudio sees, as the audio mode chooses among them."""
+    from ..responders.speech import output_devices
+
+    devices = output_devices()
+    if not devices:
+        out("no sound output found: PortAudio sees no sound card, headphones or sound "
+            "server (PulseAudio, PipeWire). Attach one or start the server, then list again.")
+        return 0
+    w = max(len(d["name"]) for d in devices)
+    out(f"{'#':>3}  {'NAME':<{w}}  {'HOST API':<10}  CHANNELS")
+    for d in devices:
+        out(f"{d['index']:>3}  {d['name']:<{w}}  {d['hostapi']:<10}  {d['channels']}"
+            + ("  (default)" if d["default"] else ""))
+    out("Choose one with --responder window:audio,device=NAME (a part of its name, or its "
+        "number); without device= the default plays.")
     return 0
 
 

@@ -383,7 +383,8 @@ def register(sub) -> None:
                         "screen=N, size=WxH, abort=KEY (default escape), scale=S (text S "
                         "times larger, 1-2.5), audio (every text spoken, answers by keys), "
                         "lang=LANG (espeak-ng's), noise=on|off (masking noise during each "
-                        "stimulus), e.g. window:windowed,size=1024x768 or "
+                        "stimulus), device=NAME (the sound output, see 'vtexp device list "
+                        "--audio'), e.g. window:windowed,size=1024x768 or "
                         "window:audio,lang=de; needs the 'gui' extra). Required, except "
                         "with --resume, which takes the one recorded in the session record")
     s.add_argument("--participant-info", metavar="FIELD=VALUE,...",

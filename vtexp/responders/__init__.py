@@ -28,7 +28,7 @@ def make_responder(spec: str, participant: str, session: int, lx=None) -> Respon
                      "scripted:random, scripted:accuracy=P, scripted:answers=FILE, "
                      "scripted:psychometric:threshold=T[,slope=S,lapse=L], "
                      "model[:seed=N,typical], "
-                     "window[:windowed|fullscreen,screen=N,size=WxH,abort=KEY]",
+                     "window[:windowed|fullscreen,screen=N,size=WxH,abort=KEY,audio,device=NAME]",
                      key="--responder")
 
 

@@ -233,18 +233,108 @@ def masking_noise(folder: Path, seconds: float = 4.0, rate: int = 22050) -> Path
     return path
 
 
-class PsychopyAudio:
-    """Plays WAV files through PsychoPy's ``sound`` (the sounddevice or PTB backend)."""
+#: How the experimenter lists the sound outputs (printed in messages: it must work as printed).
+LIST_COMMAND = "vtexp device list --audio"
 
-    def __init__(self):
+
+def output_devices(refresh: bool = True) -> list[dict]:
+    """The sound outputs PortAudio sees (through ``sounddevice``, as PsychoPy's sound does):
+    ``{"index", "name", "hostapi", "channels", "default"}`` each. ``refresh``: look again
+    (PortAudio lists the devices once, when it starts: a sound server or headphones
+    started later would be missed), unless PsychoPy already plays on a stream."""
+    try:
+        import sounddevice as sd
+    except Exception as e:          # OSError: no libportaudio2
+        raise SessionError(f"the audio mode plays sound through PortAudio, which cannot be "
+                           f"loaded ({type(e).__name__}: {e}): sudo apt-get install "
+                           "libportaudio2 (Debian/Ubuntu), brew install portaudio (macOS)"
+                           ) from None
+    if refresh and not _psychopy_streams_open():
+        sd._terminate()
+        sd._initialize()
+    default = sd.default.device[1]
+    if default is None or (isinstance(default, int) and default < 0):
+        try:
+            default = sd.query_devices(kind="output")["index"]
+        except Exception:           # PortAudio has no default output
+            default = -1
+    out = []
+    for d in sd.query_devices():
+        if d["max_output_channels"] > 0:
+            out.append({"index": d["index"], "name": d["name"],
+                        "hostapi": sd.query_hostapis(d["hostapi"])["name"],
+                        "channels": d["max_output_channels"],
+                        "default": d["index"] == default})
+    return out
+
+
+def _psychopy_streams_open() -> bool:
+    import sys
+    backend = sys.modules.get("psychopy.sound.backend_sounddevice")
+    return bool(backend is not None and len(backend.streams))
+
+
+def choose_output(device: str | None, devices: list[dict] | None = None) -> dict:
+    """The output the audio mode plays on: ``device`` (its number in the list, its name, or
+    a part of its name that only it has, any case), else the default output. A clear
+    message, naming what is missing and how to choose, if there is none."""
+    devices = output_devices() if devices is None else devices
+    how = (f"choose one with --responder window:audio,device=NAME (a part of its name, or "
+           f"its number); list them with: {LIST_COMMAND}")
+    if not devices:
+        raise SessionError("the audio mode has no sound output to play on: PortAudio finds "
+                           "no output device (no sound card, headphones or sound server such "
+                           "as PulseAudio or PipeWire). Attach headphones or start the sound "
+                           f"server, then {how}")
+    if device is None:
+        chosen = [d for d in devices if d["default"]] or devices[:1]
+        return chosen[0]
+    names = "; ".join(f"{d['index']}: {d['name']}" for d in devices)
+    if device.isdigit():
+        hit = [d for d in devices if d["index"] == int(device)]
+    else:
+        hit = [d for d in devices if d["name"].lower() == device.lower()] or \
+              [d for d in devices if device.lower() in d["name"].lower()]
+    if len(hit) == 1:
+        return hit[0]
+    if not hit:
+        raise InputError(f"no sound output {device!r} for the audio mode; the outputs are "
+                         f"{names} ({how})", key="--responder")
+    raise InputError(f"{len(hit)} sound outputs match {device!r}: "
+                     + "; ".join(f"{d['index']}: {d['name']}" for d in hit)
+                     + "; give more of the name, or the number", key="--responder")
+
+
+#: Frames per block of the output's stream (PsychoPy's default is 128: 6 ms at espeak-ng's
+#: 22050 Hz). Each block is filled by a Python callback, which needs the GIL and the CPU:
+#: on a busy computer (tests/test_audio_sound_server.py run beside other tests) the
+#: process went unscheduled for 0.1 s and more, 128- and 512-frame blocks ran dry and the
+#: prompts were heard broken up. 2048 frames are 93 ms a block; the output's latency,
+#: about two blocks, delays what is said by a fifth of a second, and the masking noise's
+#: lead covers it.
+BLOCK_FRAMES = 2048
+
+
+class PsychopyAudio:
+    """Plays WAV files through PsychoPy's ``sound`` with the sounddevice backend, on the
+    output ``device`` (see :func:`choose_output`; None: the default output). The output is
+    chosen when this is made: a computer without one is told before anything is written."""
+
+    def __init__(self, device: str | None = None):
         os.environ.setdefault("PSYCHOPYNOPACKAGES", "1")
+        self.output = choose_output(device)
         try:
             from psychopy import prefs
-            prefs.hardware["audioLib"] = ["sounddevice", "ptb"]
+            # Only sounddevice: PTB opens a stream with all of the device's channels (32
+            # on ALSA's pulse) and suspends the sound server's sink it plays into.
+            prefs.hardware["audioLib"] = ["sounddevice"]
+            prefs.hardware["audioDevice"] = self.output["name"]
             from psychopy import sound
+            from psychopy.sound import backend_sounddevice
         except Exception as e:          # no audio library, no device
             raise SessionError(f"cannot play sound for the audio mode: {type(e).__name__}: "
                                f"{e}. Is a sound card (or headphones) attached?") from None
+        backend_sounddevice.defaultOutput = self.output["index"]   # the stream's device
         self._sound = sound
         self._cache: dict[Path, object] = {}
         self._loop = None
@@ -254,16 +344,36 @@ class PsychopyAudio:
         snd = self._cache.get(key)
         if snd is None:
             try:
-                snd = self._cache[key] = self._sound.Sound(str(path), loops=loops)
+                snd = self._cache[key] = self._sound.Sound(str(path), loops=loops,
+                                                           blockSize=BLOCK_FRAMES)
             except Exception as e:
                 raise SessionError(f"cannot play {path.name} for the audio mode: "
                                    f"{type(e).__name__}: {e}") from None
         return snd
 
+    def prepare(self, path: Path) -> None:
+        """Load the clip (and open the output's stream, the first time)."""
+        self._get(path)
+
     def play(self, path: Path) -> None:
         snd = self._get(path)
         snd.stop()
         snd.play()
+
+    def playing(self, path: Path) -> bool:
+        """Whether the output still has samples of the clip to play (False once its last
+        block was handed to the output)."""
+        snd = self._cache.get((path, 0))
+        return bool(snd is not None and snd.isPlaying)
+
+    @property
+    def latency_s(self) -> float:
+        """At most how long a clip takes from :meth:`play` to the headphones: the output's
+        latency as PortAudio reports it, and a block (a clip starts with the next block
+        the stream asks for); 0 before the stream opened."""
+        from psychopy.sound import backend_sounddevice
+        return max((float(getattr(st, "latency", 0.0) or 0.0) + st.blockSize / st.sampleRate
+                    for st in backend_sounddevice.streams.values()), default=0.0)
 
     def stop(self, path: Path) -> None:
         snd = self._cache.get((path, 0))
@@ -278,6 +388,12 @@ class PsychopyAudio:
         if self._loop is not None:
             self._loop.stop()
             self._loop = None
+
+
+#: How long a clip may go on playing past its length (its output ran dry and plays it
+#: late) before the next one starts anyway: an output that stopped altogether does not
+#: keep the session waiting.
+MAX_LATE_S = 2.0
 
 
 @dataclass
@@ -306,6 +422,7 @@ class Speech:
         self.played: list[Played] = []
         self.noise_on: list[tuple[float, float]] = []     # (start, stop) of masking noise
         self._noise_since: float | None = None
+        self._late = False                  # the clip on now outlasted its length
 
     def phrase(self, name: str, /, **values) -> str:
         return self.book[name].format(**values)
@@ -323,14 +440,27 @@ class Speech:
         now = self.clock.now()
         if self.current is not None and now >= self.current[3]:
             text, path, start, end = self.current
-            self.played.append(Played(text, path, start, end))
-            self.current = None
+            if self._still_playing() and now < end + MAX_LATE_S:
+                self._late = True               # it ends when the output is done with it
+            else:
+                self.played.append(Played(text, path, start, now if self._late else end))
+                self.current, self._late = None, False
         if self.current is None and self.queue:
             text, path = self.queue.pop(0)
-            self.audio.play(path)
+            prepare = getattr(self.audio, "prepare", None)
+            if prepare is not None:     # loaded first: the start logged is when it plays
+                prepare(path)
             start = self.clock.now()
+            self.audio.play(path)
             length = getattr(self.audio, "duration", wav_duration_s)(path)
             self.current = (text, path, start, start + length)
+
+    def _still_playing(self) -> bool:
+        """The output has not played the clip's last samples yet, though its length has
+        passed (its stream ran dry on a busy computer and plays late): the next clip
+        waits, so that two are never heard at once."""
+        playing = getattr(self.audio, "playing", None)
+        return bool(playing is not None and playing(self.current[1]))
 
     def busy(self) -> bool:
         self.update()
@@ -342,7 +472,7 @@ class Speech:
             text, path, start, _ = self.current
             self.audio.stop(path)
             self.played.append(Played(text, path, start, self.clock.now()))
-            self.current = None
+            self.current, self._late = None, False
         self.queue.clear()
 
     def start_noise(self) -> None:

@@ -39,6 +39,7 @@ neither); its console log shows errors only.
 from __future__ import annotations
 
 import atexit
+import gc
 import os
 import shutil
 import sys
@@ -131,6 +132,11 @@ class Button:
         return abs(pos[0] - self.x) <= self.w / 2 and abs(pos[1] - self.y) <= self.h / 2
 
 
+#: How long the masking noise is heard before each stimulus starts (s), on top of the
+#: sound output's latency (the time its samples take to reach the headphones).
+NOISE_LEAD_S = 0.15
+
+
 @dataclass(frozen=True)
 class WindowOptions:
     fullscreen: bool = True
@@ -141,12 +147,14 @@ class WindowOptions:
     audio: bool | None = None           # None: the experiment's (presentation.audio)
     language: str | None = None
     noise: bool | None = None
+    device: str | None = None           # the audio mode's sound output (None: the default)
 
     @classmethod
     def parse(cls, spec: str) -> WindowOptions:
         """``windowed``, ``fullscreen``, ``screen=N``, ``size=WxH``, ``abort=KEY``,
         ``scale=S``, ``audio``, ``audio=off``, ``lang=LANG``, ``noise=on|off``,
-        comma-separated."""
+        ``device=NAME`` (the audio mode's sound output: its number in ``vtexp device list
+        --audio``, or a part of its name), comma-separated."""
         opts: dict = {}
         for part in filter(None, (p.strip() for p in spec.split(","))):
             name, eq, value = part.partition("=")
@@ -176,10 +184,12 @@ class WindowOptions:
                 opts["language"] = value
             elif name == "noise" and value in ("on", "off"):
                 opts["noise"] = value == "on"
+            elif name == "device" and eq and value:
+                opts["device"] = value
             else:
                 raise InputError(f"unknown window option {part!r}; use windowed, fullscreen, "
                                  "screen=N, size=WxH, abort=KEY, scale=S, audio, lang=LANG, "
-                                 "noise=on|off (e.g. window:windowed,size=1024x768)",
+                                 "noise=on|off, device=NAME (e.g. window:windowed,size=1024x768)",
                                  key="--responder")
         return cls(**opts)
 
@@ -275,6 +285,7 @@ class WindowResponder:
         self._stims: dict[tuple, object] = {}
         self._practice_seen = False
         self._paused = False
+        self._frozen = False                  # see _freeze_garbage
         self.entered: list[str] = []          # every screen shown, in order
         pres = getattr(getattr(lx, "experiment", None), "presentation", None)
         o = self.options
@@ -288,14 +299,24 @@ class WindowResponder:
         if self.audio_mode:
             book = phrase_book(self.language, dict(pres.phrases) if pres else None)
             name = lx.experiment.name if lx is not None else "any"
+            # The sound output first: a computer without one is told before anything is
+            # written (the dataset, the session folder, the speech cache).
+            if audio is None:
+                audio = PsychopyAudio(o.device)
             voice = Voice(name, self.language)
-            self.speech = Speech(voice, audio if audio is not None else PsychopyAudio(), book,
+            self.speech = Speech(voice, audio, book,
                                  masking_noise(voice.folder) if noise else None, clock=clock)
             if lx is not None:
                 voice.prerender(self.sentences(lx.experiment))
+            prepare = getattr(audio, "prepare", None)
+            if prepare is not None and self.speech.noise is not None:
+                # The output's stream opened now: a stream opened by the first clip lost
+                # that clip's first ~100 ms through a sound server.
+                prepare(self.speech.noise)
         mode = "fullscreen" if o.fullscreen else "windowed {}x{}".format(*o.size)
         extra = (f", scale {self.scale:g}" if self.scale != 1 else "") + (
             f", audio {self.language}" + (", masking noise" if noise else "")
+            + (f", sound output {audio.output['name']}" if hasattr(audio, "output") else "")
             if self.audio_mode else "")
         self.description = f"window ({mode}, screen {o.screen}{extra})"
 
@@ -315,6 +336,7 @@ class WindowResponder:
                                    "attached (DISPLAY set), and does the screen exist?") from None
             if self.lx is not None:
                 self.check_layouts(self.lx.experiment)
+            self._freeze_garbage()
         if self._mouse is None:
             self._mouse = self._event.Mouse(win=self.win, visible=True)
         return self.win
@@ -324,10 +346,24 @@ class WindowResponder:
         w, h = self.open().size
         return w / h
 
+    def _freeze_garbage(self) -> None:
+        """In the audio mode, keep the garbage collector off everything made so far
+        (PsychoPy, the window, the rendered layouts: a quarter of a million objects).
+        A full collection looked at all of them while holding the GIL, for 0.1-0.4 s on a
+        busy computer, and the sound output's callback, which needs the GIL, ran dry
+        meanwhile: the prompt being said was heard broken up. Undone in :meth:`close`."""
+        if self.speech is not None and not self._frozen:
+            gc.collect()
+            gc.freeze()
+            self._frozen = True
+
     def close(self) -> None:
         if self.speech is not None:
             self.speech.stop()
             self.speech.stop_noise()
+        if self._frozen:
+            gc.unfreeze()               # collectable again, once the window has gone
+            self._frozen = False
         if self.win is not None:
             self.win.close()
         self.win = self._mouse = None
@@ -474,7 +510,18 @@ class WindowResponder:
             lines = ([self.speech.phrase("practice")] if trial is not None and trial.practice
                      else []) + [self.speech.phrase("ready")]
             self._say(*lines, wait=True)        # nothing is heard while the stimulus plays
+            self._noise_first()
+
+    def _noise_first(self) -> None:
+        """Start the masking noise NOISE_LEAD_S plus the output's latency before the
+        stimulus: its first samples were heard a few milliseconds after the stimulus's
+        start otherwise (measured through a sound server, tests/test_audio_sound_server.py)."""
+        if self.speech is not None and self.speech.noise is not None:
             self.speech.start_noise()
+            lead = NOISE_LEAD_S + getattr(self.speech.audio, "latency_s", 0.0)
+            until = time.perf_counter() + lead
+            while time.perf_counter() < until:
+                self._frame(collect=False)
 
     def stimulus_played(self, trial: Trial, report) -> None:
         if self.speech is not None:
@@ -721,8 +768,9 @@ class WindowResponder:
                 self._say(*self.question_sentences(q), *extra)
 
         show(entering=True)
-        speak_question()
         win.callOnFlip(self.clock.reset)        # the time origin: the flip that shows it
+        self._first_frame()
+        speak_question()
         while True:
             for key, t, button in self._frame():
                 value = button.value if button is not None else None
@@ -734,11 +782,12 @@ class WindowResponder:
                     self._show_ready(trial)
                     if self.speech is not None:
                         self._say(self.speech.phrase("ready"), wait=True)
-                        self.speech.start_noise()
+                        self._noise_first()
                     replay()
                     show(entering=True)
-                    speak_question()
                     win.callOnFlip(self.clock.reset)
+                    self._first_frame()
+                    speak_question()
                     break
                 if value == "repeat" or key == REPEAT_KEY:
                     speak_question()
@@ -821,6 +870,7 @@ class WindowResponder:
     def _confirm(self, q, answer: str, show) -> None:
         """The answer is shown taken (its button filled) and said back, before moving on."""
         show(answered=answer)
+        self._first_frame()
         if self.speech is not None:
             self._say(self.speech.phrase("answer_taken", answer=self.spoken_answer(q, answer)))
         until = self._core.getTime() + CONFIRM_S
@@ -830,6 +880,7 @@ class WindowResponder:
     def _wait_to_continue(self, name: str, text: str, hint: str, abort: bool = True,
                           spoken: Sequence[str] = (), listen_while_speaking: bool = True) -> None:
         self._message_screen(name, text, hint)
+        self._first_frame()
         if self.speech is not None and spoken:
             self._say(*spoken)
             if not listen_while_speaking:       # the end: said in full before it closes
@@ -845,6 +896,14 @@ class WindowResponder:
                     if self.speech is not None:
                         self.speech.stop()
                     return
+
+    def _first_frame(self) -> None:
+        """Draw the screen just entered once, before anything is said over it: its first
+        drawing makes its text (a quarter of a second for a question screen on a busy
+        computer), holding the GIL that the sound output's callback needs, and a clip
+        started before it was heard broken up. Keys wait for the screen's own loop."""
+        if self.speech is not None:
+            self._frame(collect=False)
 
     def _show_ready(self, trial: Trial | None = None) -> None:
         self.open()
