@@ -492,6 +492,25 @@ def test_a_wrong_device_or_profile_is_one_message(device, profile, expected):
     assert str(e.value).startswith("vtexp: error: ") and "\n" not in str(e.value)
 
 
+def test_two_components_naming_one_array_with_different_settings_is_one_message():
+    """Components that share a device name share one array; one that asks it for another
+    device or profile ends the script before anything opens, naming both."""
+    array = builder.TactileArray("sim", PROFILE, name="vest")
+    for other, said in ((dict(device="emulator", profile=PROFILE), "'sim' and 'emulator'"),
+                        (dict(device="sim", profile="pad_20x20"),
+                         "'vest_6x8' and 'pad_20x20'")):
+        with pytest.raises(builder.BuilderError) as e:
+            array.open(say=lambda line: None, **other)
+        assert said in str(e.value) and "\n" not in str(e.value)
+        assert str(e.value).startswith("vtexp: error: vest: two components name this array")
+    assert array.device is None                      # nothing was opened
+    assert array.open(say=lambda line: None, device="sim", profile=PROFILE) is array
+    try:
+        assert array.device is not None
+    finally:
+        array.close()
+
+
 @pytest.mark.parametrize("spec, expected", [
     (dict(stimulus="shape:shape=hexagon"), "conditions.csv row 2: stimulus: 'shape:shape=hexagon'"),
     (dict(stimulus="blob:x=1"), "unknown stimulus generator 'blob'"),

@@ -243,9 +243,20 @@ class TactileArray:
             pass
         return out
 
-    def open(self, say: Callable[[str], None] | None = None) -> TactileArray:
+    def open(self, say: Callable[[str], None] | None = None, *, device: str | None = None,
+             profile: str | None = None) -> TactileArray:
         """Open the device and check it as ``vtexp run`` does before the first trial.
-        Opening an open array does nothing (one device, opened once per experiment)."""
+        Opening an open array does nothing (one device, opened once per experiment).
+
+        ``device`` and ``profile``: what the component opening it asks for; components
+        sharing a device name must ask for the same array, or the script ends here in
+        one line naming both."""
+        for asked, mine, what in ((device, self.spec, "device"),
+                                  (profile, self.profile_name, "profile")):
+            if asked is not None and str(asked).strip() != mine:
+                raise _fail(f"{self.name}: two components name this array with different "
+                            f"{what}s ({mine!r} and {str(asked).strip()!r}); give each "
+                            "array a device name of its own, or the same settings")
         if self.device is not None:
             return self
         from .devices import open_device
