@@ -24,7 +24,8 @@ def pytest_addoption(parser):
 #: timer), first: pytest-xdist hands whole files (`--dist loadfile`) to its processes in
 #: the order collected, and a long file handed out last keeps the run waiting for it
 #: alone. Alphabetical order put the participant window's 40 s near the end.
-LONGEST_FIRST = ("test_cli.py", "test_accessible_window.py", "test_psychopy_builder.py",
+LONGEST_FIRST = ("test_firmware_study.py", "test_cli.py", "test_accessible_window.py",
+                 "test_psychopy_builder.py",
                  "test_analysis_report.py", "test_resume_safety.py", "test_window.py",
                  "test_audio_sound_server.py", "test_live.py", "test_firmware_pins.py",
                  "test_live_preview.py", "test_conform.py", "test_camera_trials.py",

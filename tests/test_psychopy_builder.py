@@ -8,7 +8,7 @@ on Xvfb, answered with real key presses (XTEST). Its array is the emulated firmw
 behind a pseudo-terminal, as ``--device emulator`` starts it, but started here, in the
 test's process, and reached by the script as ``serial:PTY``: what the emulated device
 drove is then read from outside the process under test, which cannot report it wrongly
-or forget to. The compiled script's device is the only line changed.
+or forget to. The compiled script's device is all that is changed.
 
 The runtime (``vtexp.builder``) is also tested in this process: the ``emulator`` and
 ``sim`` devices, a stop mid-play, and the one-line messages of a user's mistakes.
@@ -204,7 +204,8 @@ def _run(compiled: Path, plugin_site: Path, display: str, tmp_path: Path, *,
     script = compiled.read_text(encoding="utf-8-sig")
     # the one change: the device, the emulated array served here (a longer heartbeat than
     # the default, for a machine the window's drawing keeps busy; the link is not the test)
-    assert script.count("device='emulator'") == 1
+    # (named twice: where the array is added to the device manager and where it opens)
+    assert script.count("device='emulator'") == 2
     script = script.replace("device='emulator'", f"device='serial:{port},heartbeat_ms=500'")
     # Xvfb has no refresh to measure: 60 Hz, as a lab's monitor (saves ~4 s a run)
     script = _sixty_hz(script)
