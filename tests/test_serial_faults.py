@@ -123,6 +123,26 @@ def test_a_late_reply_is_retried_and_the_retry_does_not_actuate_twice():
     assert sorted(on_events(dev.emulator)) == expected(s)
 
 
+def test_the_clock_mapping_holds_its_bound_when_replies_are_late():
+    # Every reply 40 ms late, the reply wait 30 ms: each heartbeat is sent again, and the
+    # reply that comes is the first sending's, its device clock read before the repeat
+    # left. Measured from the repeat, the exchange looked 10 ms long and mapped the
+    # device's clock 35 ms wrong, claiming 5 ms (on a busy computer: a marker stamped
+    # 14 ms off, claiming 0.1 ms).
+    clock = VirtualClock()
+    dev = open_device("emulator", VEST, faults=Faults(delay_ms=40), reply_timeout_ms=30,
+                      clock=clock)
+    with dev:
+        report = dev.play(sweep(4))
+        assert dev.link_stats()["timeouts"] > 0
+        offset, error = dev.clock_map.offset_ms()
+        truth = -dev.emulator._origin * 1000.0          # device ms − host ms
+        assert abs(offset - truth) <= error + 1e-6, (offset, truth, error)
+        host_ms = report.started_at_host_ms
+        started = dev.emulator._origin * 1000.0 + report.started_at_ms   # host ms
+        assert abs(host_ms - started) <= report.host_clock_error_ms + 1e-6
+
+
 def test_lost_onset_events_are_fetched_again_not_guessed():
     # Drop only what the device sends: ONSET/PLAY_DONE events get lost and the host
     # must ask for the onsets (GET_ONSETS) and the status; every onset it reports must

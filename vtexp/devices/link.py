@@ -266,8 +266,10 @@ class Link:
             with self._cond:
                 self._pending, self._reply, self._resend = seq, None, False
             attempt = 0
+            first_sent = None
             while True:
                 sent = self.clock.now()
+                first_sent = sent if first_sent is None else first_sent
                 self._write(frame, msg)
                 self.wait_for(lambda: (self._reply is not None or self._resend
                                        or self.lost is not None or self._closing.is_set()),
@@ -281,7 +283,10 @@ class Link:
                 if reply is not None:
                     if self.on_clock_sample is not None and isinstance(msg, wire.Heartbeat) \
                             and isinstance(reply, wire.Ack):
-                        self.on_clock_sample(sent * 1000.0, self.clock.now_ms(),
+                        # From the first sending: the reply to a request sent again may be
+                        # the first one's, late, or the device's cached copy of it, its
+                        # clock read before the repeat left.
+                        self.on_clock_sample(first_sent * 1000.0, self.clock.now_ms(),
                                              reply.t_us / 1000.0)
                     return reply
                 if attempt >= retries:
