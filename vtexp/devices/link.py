@@ -50,9 +50,10 @@ ATTEMPTS_IN_SILENCE = 5
 def suggested_reply_ms(heartbeat_ms: float) -> int:
     """The longest reply wait (``reply_ms``, in 10 ms steps, at least the default 25 ms)
     that lets a request be sent :data:`ATTEMPTS_IN_SILENCE` times within the silence
-    limit of a heartbeat period of ``heartbeat_ms``, as the defaults do: a link with a
-    slower heartbeat (a simulated chip, a busy computer) then survives as many lost replies
-    in a row. A longer wait than this, with the same period, survives fewer."""
+    limit of a heartbeat period of ``heartbeat_ms``, as the defaults nearly do (25 ms waits
+    in a 120 ms limit: 4.8 of them): a link with a slower heartbeat (a simulated chip, a
+    busy computer) then survives as many lost replies in a row. A longer wait than this,
+    with the same period, survives fewer."""
     return max(25, int(SILENCE_FRACTION * heartbeat_ms / ATTEMPTS_IN_SILENCE) // 10 * 10)
 
 
