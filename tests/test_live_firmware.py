@@ -85,7 +85,10 @@ def test_a_moving_object_felt_live_on_the_chip(live_on_the_chip):
     assert "every actuator is off" in run.stdout
     lr = load_record(rec)
     s = lr.meta["summary"]
-    assert lr.meta["status"] == "completed" and s["frames_processed"] >= 150
+    # how many of the video's 180 frames the loop took depends on the computer's speed
+    # (it takes the newest frame, as from a camera; bench/live.py measures the rate): 150
+    # here failed on a busy machine. What is checked is that the object was felt moving.
+    assert lr.meta["status"] == "completed" and s["frames_processed"] >= 30
     assert s["latency_ms"]["n"] > 10 and s["reconnects"] == 0
     # held whole, the outline asks for more pins than the budget and for longer than
     # max_on_ms: the guard cut trains and skipped pins, and said so
