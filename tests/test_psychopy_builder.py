@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ast
 import csv
+import gc
 import importlib.util
 import os
 import shutil
@@ -188,6 +189,26 @@ def _sixty_hz(script: str) -> str:
     return script.replace("win.getActualFrameRate(", "(lambda **_: 60.0)(")
 
 
+#: The link the compiled script gets to the device served here: a heartbeat of 1 s, so
+#: 600 ms of silence before the device counts as lost (the default 200 ms, or 500 ms,
+#: lost it on a busy machine; the link is not what these tests are about).
+LINK = "heartbeat_ms=1000"
+
+
+def _serve(emu) -> str:
+    """Start the emulated device in this process, for a script in another. A full garbage
+    collection of this test process holds Python's lock for long enough that the device
+    falls silent past the link's limit, so what the tests before made is left out of
+    collections too (``gc.freeze``, as tests/conftest.py does after collection)."""
+    gc.collect()
+    gc.freeze()
+    return emu.start()
+
+
+def _unserve(emu) -> None:
+    emu.stop()
+
+
 def _run(compiled: Path, plugin_site: Path, display: str, tmp_path: Path, *,
          escape_in_trial: int | None = None):
     """The compiled example against an emulated device served here; answers every trial
@@ -200,13 +221,12 @@ def _run(compiled: Path, plugin_site: Path, display: str, tmp_path: Path, *,
         shutil.copy(compiled.parent / f, run_dir / f)
     emu = PtyEmulator.for_profile(DeviceProfile.load(PROFILE))
     _record_onsets_sent(emu)
-    port = emu.start()
+    port = _serve(emu)
     script = compiled.read_text(encoding="utf-8-sig")
-    # the one change: the device, the emulated array served here (a longer heartbeat than
-    # the default, for a machine the window's drawing keeps busy; the link is not the test)
-    # (named twice: where the array is added to the device manager and where it opens)
+    # the one change: the device, the emulated array served here (with LINK), named twice:
+    # where the array is added to the device manager and where it opens
     assert script.count("device='emulator'") == 2
-    script = script.replace("device='emulator'", f"device='serial:{port},heartbeat_ms=500'")
+    script = script.replace("device='emulator'", f"device='serial:{port},{LINK}'")
     # Xvfb has no refresh to measure: 60 Hz, as a lab's monitor (saves ~4 s a run)
     script = _sixty_hz(script)
     (run_dir / "tactile_shapes.py").write_text(script, encoding="utf-8")
@@ -220,7 +240,9 @@ def _run(compiled: Path, plugin_site: Path, display: str, tmp_path: Path, *,
             proc.kill()
             pytest.fail("no PsychoPy window appeared: " + proc.communicate()[1][-3000:])
         for trial in range(1, 9):
-            assert _wait(lambda: len(_plays(emu)) >= trial, proc, 30), f"trial {trial} not played"
+            if not _wait(lambda: len(_plays(emu)) >= trial, proc, 30):
+                proc.kill()
+                pytest.fail(f"trial {trial} not played: " + proc.communicate()[1][-3000:])
             if trial == escape_in_trial:
                 time.sleep(0.1)
                 escaped_at = keys.press("Escape")
@@ -238,7 +260,7 @@ def _run(compiled: Path, plugin_site: Path, display: str, tmp_path: Path, *,
             proc.communicate()
         keys.close()
         time.sleep(0.05)
-        emu.stop()
+        _unserve(emu)
     data = sorted((run_dir / "data").glob("*.csv"))
     assert len(data) == 1, (out, err[-3000:])
     with open(data[0], encoding="utf-8-sig", newline="") as f:
@@ -340,10 +362,10 @@ def test_a_crash_mid_stimulus_turns_every_actuator_off(compiled, plugin_site, xv
     shutil.copy(compiled.parent / "conditions.csv", run_dir / "conditions.csv")
     emu = PtyEmulator.for_profile(DeviceProfile.load(PROFILE))
     _record_onsets_sent(emu)
-    port = emu.start()
+    port = _serve(emu)
     try:
         script = _sixty_hz(compiled.read_text(encoding="utf-8-sig")).replace(
-            "device='emulator'", f"device='serial:{port},heartbeat_ms=500'")
+            "device='emulator'", f"device='serial:{port},{LINK}'")
         escape_check = '            if defaultKeyboard.getKeys(keyList=["escape"]):\n'
         assert script.count(escape_check) == 1
         script = script.replace(escape_check, (
@@ -355,7 +377,7 @@ def test_a_crash_mid_stimulus_turns_every_actuator_off(compiled, plugin_site, xv
                            text=True, timeout=120)
         time.sleep(0.05)
     finally:
-        emu.stop()
+        _unserve(emu)
     assert r.returncode == 1 and "RuntimeError: a crash mid-stimulus" in r.stderr
     assert len(_plays(emu)) == 1
     cut = emu.firmware.last_play

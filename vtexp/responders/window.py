@@ -351,11 +351,14 @@ class WindowResponder:
         (PsychoPy, the window, the rendered layouts: a quarter of a million objects).
         A full collection looked at all of them while holding the GIL, for 0.1-0.4 s on a
         busy computer, and the sound output's callback, which needs the GIL, ran dry
-        meanwhile: the prompt being said was heard broken up. Undone in :meth:`close`."""
+        meanwhile: the prompt being said was heard broken up. Undone in :meth:`close`,
+        unless the program had frozen objects itself before (it then expects them to stay
+        so, and ours stay with them)."""
         if self.speech is not None and not self._frozen:
+            ours = gc.get_freeze_count() == 0
             gc.collect()
             gc.freeze()
-            self._frozen = True
+            self._frozen = ours
 
     def close(self) -> None:
         if self.speech is not None:
