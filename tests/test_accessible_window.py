@@ -26,6 +26,7 @@ import pandas as pd
 import pytest
 
 from conftest import ROOT
+from xkeyboard import XKeyboard
 
 if importlib.util.find_spec("psychopy") is None:
     pytest.skip("PsychoPy is not installed (the 'gui' extra)", allow_module_level=True)
@@ -83,31 +84,6 @@ class CapturedAudio:
         self.log.append(("stop_loop", None, time.monotonic()))
 
 
-class XKeyboard:
-    """Real key presses through the X server's XTEST extension."""
-
-    def __init__(self, display_name):
-        from Xlib import XK, display
-        self.XK = XK
-        self.d = display.Display(display_name)
-
-    def focus(self, win):
-        from Xlib import X
-        w = self.d.create_resource_object("window", win.winHandle._window)
-        w.set_input_focus(X.RevertToParent, X.CurrentTime)
-        self.d.sync()
-
-    def press(self, keysym):
-        from Xlib import X
-        from Xlib.ext import xtest
-        code = self.d.keysym_to_keycode(self.XK.string_to_keysym(keysym))
-        assert code, f"no key for {keysym}"
-        xtest.fake_input(self.d, X.KeyPress, code)
-        xtest.fake_input(self.d, X.KeyRelease, code)
-        self.d.sync()
-
-    def close(self):
-        self.d.close()
 
 
 def quiet(r) -> bool:

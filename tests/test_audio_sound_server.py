@@ -43,6 +43,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, dies_with_us, write_experiment
+from xkeyboard import XKeyboard
 
 if importlib.util.find_spec("psychopy") is None:
     pytest.skip("PsychoPy is not installed (the 'gui' extra)", allow_module_level=True)
@@ -346,30 +347,6 @@ def _segments(loud: np.ndarray, frame: float) -> list[tuple[float, float]]:
     return [(a * frame, b * frame) for a, b in zip(edges[::2], edges[1::2])]
 
 
-class XKeys:
-    """Real key presses through XTEST (as tests/test_accessible_window.py sends them)."""
-
-    def __init__(self, display_name):
-        from Xlib import XK, display
-        self.XK, self.d = XK, display.Display(display_name)
-
-    def focus(self, win):
-        from Xlib import X
-        w = self.d.create_resource_object("window", win.winHandle._window)
-        w.set_input_focus(X.RevertToParent, X.CurrentTime)
-        self.d.sync()
-
-    def press(self, keysym):
-        from Xlib import X
-        from Xlib.ext import xtest
-        code = self.d.keysym_to_keycode(self.XK.string_to_keysym(keysym))
-        assert code, f"no key for {keysym}"
-        xtest.fake_input(self.d, X.KeyPress, code)
-        xtest.fake_input(self.d, X.KeyRelease, code)
-        self.d.sync()
-
-    def close(self):
-        self.d.close()
 
 
 class Stuck(Exception):
@@ -390,7 +367,7 @@ class Participant:
         self.problem: str | None = None
         self.ended = threading.Event()          # set by the test when the session is over
         self.thread = threading.Thread(target=self._run, daemon=True)
-        self.kb: XKeys | None = None
+        self.kb: XKeyboard | None = None
 
     def start(self) -> None:
         self.thread.start()
@@ -461,7 +438,7 @@ class Participant:
     def _run(self) -> None:
         r = self.r
         try:
-            self.kb = XKeys(self.display)
+            self.kb = XKeyboard(self.display)
             self.until(lambda: r.win is not None and r.screen == "instructions",
                        "instructions screen")
             self.until(lambda: self.said(BEGIN) >= 1,

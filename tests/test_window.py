@@ -23,6 +23,7 @@ import pandas as pd
 import pytest
 
 from conftest import MINIMAL, ROOT, write_experiment, session_record
+from xkeyboard import XKeyboard
 
 if importlib.util.find_spec("psychopy") is None:
     pytest.skip("PsychoPy is not installed (the 'gui' extra: pip install -e '.[gui]'; "
@@ -234,40 +235,6 @@ def test_escape_pressed_between_two_trials_aborts_at_the_next_screen(tmp_path, m
     assert meta["status"] == "aborted" and meta["n_trials_logged"] == 1
     assert set(events["trial"]) == {"1"}         # trial 2's stimulus never played
     assert r.win is None
-
-
-class XKeyboard:
-    """Real key presses, sent to the X server through its XTEST extension (as a keyboard's).
-
-    PsychoPy's own ``event.getKeys`` reads them, so this drives the real input path.
-    """
-
-    def __init__(self, display_name: str):
-        pytest.importorskip("Xlib", reason="python-xlib (installed with PsychoPy on Linux)")
-        from Xlib import XK, display
-        self.XK = XK
-        self.d = display.Display(display_name)
-        assert self.d.has_extension("XTEST"), "the X server has no XTEST extension"
-
-    def focus(self, win) -> None:
-        from Xlib import X
-        w = self.d.create_resource_object("window", win.winHandle._window)
-        self.d.set_input_focus(w, X.RevertToParent, X.CurrentTime)
-        self.d.sync()
-
-    def press(self, keysym: str) -> float:
-        """Press and release a key; return when it was pressed (``time.perf_counter``)."""
-        from Xlib import X
-        from Xlib.ext import xtest
-        code = self.d.keysym_to_keycode(self.XK.string_to_keysym(keysym))
-        t = time.perf_counter()
-        xtest.fake_input(self.d, X.KeyPress, code)
-        xtest.fake_input(self.d, X.KeyRelease, code)
-        self.d.sync()
-        return t
-
-    def close(self) -> None:
-        self.d.close()
 
 
 def wait_for(cond, timeout=20.0) -> bool:
