@@ -213,8 +213,9 @@ def _run(compiled: Path, plugin_site: Path, display: str, tmp_path: Path, *,
          escape_in_trial: int | None = None):
     """The compiled example against an emulated device served here; answers every trial
     with key 1 as soon as the play has ended (or Escape 0.1 s into trial
-    ``escape_in_trial``'s play). Returns the emulator (stopped), the process's result,
-    the data file's rows and the time Escape was pressed."""
+    ``escape_in_trial``'s play, the pulses then 150 ms long). Returns the emulator
+    (stopped), the process's result, the data file's rows and the time Escape was
+    pressed."""
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     for f in ("tactile_shapes.psyexp", "conditions.csv"):
@@ -229,6 +230,12 @@ def _run(compiled: Path, plugin_site: Path, display: str, tmp_path: Path, *,
     script = script.replace("device='emulator'", f"device='serial:{port},{LINK}'")
     # Xvfb has no refresh to measure: 60 Hz, as a lab's monitor (saves ~4 s a run)
     script = _sixty_hz(script)
+    if escape_in_trial is not None:
+        # pulses of 150 ms, one after another, not 40: Escape, pressed 0.1 s into a play,
+        # must be seen by the script while the play lasts (a 12-pulse circle lasts 0.48 s
+        # at 40 ms: on a busy machine the play ended first)
+        assert script.count("duration_ms=40, soa_ms=40") == 2  # checked at start, played
+        script = script.replace("duration_ms=40, soa_ms=40", "duration_ms=150, soa_ms=150")
     (run_dir / "tactile_shapes.py").write_text(script, encoding="utf-8")
     keys = Keys(display)
     proc = subprocess.Popen([sys.executable, str(run_dir / "tactile_shapes.py")], cwd=run_dir,
@@ -366,6 +373,10 @@ def test_a_crash_mid_stimulus_turns_every_actuator_off(compiled, plugin_site, xv
     try:
         script = _sixty_hz(compiled.read_text(encoding="utf-8-sig")).replace(
             "device='emulator'", f"device='serial:{port},{LINK}'")
+        # pulses of 150 ms (as in the Escape test): the first stimulus lasts 2 s, and
+        # the crash 0.2 s into it comes while it plays however busy the machine
+        assert script.count("duration_ms=40, soa_ms=40") == 2
+        script = script.replace("duration_ms=40, soa_ms=40", "duration_ms=150, soa_ms=150")
         escape_check = '            if defaultKeyboard.getKeys(keyList=["escape"]):\n'
         assert script.count(escape_check) == 1
         script = script.replace(escape_check, (
