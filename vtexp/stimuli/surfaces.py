@@ -45,12 +45,26 @@ class SurfaceParams(Model):
     seed: int = 0
 
 
-def _coords(p: SurfaceParams, ss: int = 1) -> tuple[np.ndarray, np.ndarray, float]:
+def _window(p: SurfaceParams) -> tuple[int, int, int, int]:
+    """Rows ``r0:r1`` and columns ``c0:c1`` of the image that hold the whole object and
+    two pixels of background round it: every surface lies within 4/3 R of its centre
+    (the vase: |y| <= R, |x| <= 0.88 R), 1.5 R is taken."""
+    reach = 1.5 * p.size * p.height / 2 + 2
+    cx, cy = p.center_x * p.width, p.center_y * p.height
+    return (max(0, int(np.floor(cy - reach))), min(p.height, int(np.ceil(cy + reach))),
+            max(0, int(np.floor(cx - reach))), min(p.width, int(np.ceil(cx + reach))))
+
+
+def _coords(p: SurfaceParams, ss: int = 1,
+            window: tuple[int, int, int, int] | None = None
+            ) -> tuple[np.ndarray, np.ndarray, float]:
     """Object-centred coordinates in pixels (x right, y down), rotated; radius R.
 
-    ``ss`` samples each pixel ``ss x ss`` times (coordinates of the sub-pixel centres).
+    ``ss`` samples each pixel ``ss x ss`` times (coordinates of the sub-pixel centres);
+    ``window`` (rows ``r0:r1``, columns ``c0:c1``) gives those of that part only.
     """
-    yy, xx = np.mgrid[0:p.height * ss, 0:p.width * ss].astype(np.float64)
+    r0, r1, c0, c1 = window or (0, p.height, 0, p.width)
+    yy, xx = np.mgrid[r0 * ss:r1 * ss, c0 * ss:c1 * ss].astype(np.float64)
     x = (xx + 0.5) / ss - p.center_x * p.width
     y = (yy + 0.5) / ss - p.center_y * p.height
     a = np.deg2rad(p.rotation_deg)
@@ -70,13 +84,15 @@ def vase_radius(v: np.ndarray) -> np.ndarray:
     return (1.0 - v ** 2) ** 0.3 * (0.70 + 0.18 * np.cos(1.1 * np.pi * (v - 0.35)))
 
 
-def surface_height(_supersample: int = 1, **params) -> tuple[np.ndarray, np.ndarray]:
+def surface_height(_supersample: int = 1, _window: tuple[int, int, int, int] | None = None,
+                   **params) -> tuple[np.ndarray, np.ndarray]:
     """True height map (pixels, towards the camera) and object mask of a surface.
 
-    Sampled at pixel centres (``_supersample`` > 1: at sub-pixel centres, for rendering).
+    Sampled at pixel centres (``_supersample`` > 1: at sub-pixel centres, for rendering);
+    over the whole image, or the part ``_window`` (:func:`_window`) that holds the object.
     """
     p = SurfaceParams(**params)
-    x, y, R = _coords(p, _supersample)
+    x, y, R = _coords(p, _supersample, _window)
     r = np.hypot(x, y)
     if p.surface == "vase":
         v = y / R
@@ -154,11 +170,16 @@ def render_surface(**params) -> np.ndarray:
     """
     p = SurfaceParams(**params)
     ss = SUPERSAMPLE
-    z, mask = surface_height(_supersample=ss, **params)
+    # the object's part of the image only (about a quarter of it for a ball): the rest
+    # is background, and the pixels are the same as if the whole image were shaded
+    r0, r1, c0, c1 = window = _window(p)
+    h, w = r1 - r0, c1 - c0
+    z, mask = surface_height(_supersample=ss, _window=window, **params)
     e = shade(z, mask, 1.0 / ss)
-    cover = mask.reshape(p.height, ss, p.width, ss).mean(axis=(1, 3))
-    lit = e.reshape(p.height, ss, p.width, ss).sum(axis=(1, 3))
-    e_pix = np.where(cover >= 0.5, lit / np.maximum(cover * ss * ss, 1), 0.0)
+    cover = mask.reshape(h, ss, w, ss).mean(axis=(1, 3))
+    lit = e.reshape(h, ss, w, ss).sum(axis=(1, 3))
+    e_pix = np.zeros((p.height, p.width))
+    e_pix[r0:r1, c0:c1] = np.where(cover >= 0.5, lit / np.maximum(cover * ss * ss, 1), 0.0)
     img = p.background + (p.albedo - p.background) * e_pix
     if p.noise_sd > 0:
         img = img + np.random.default_rng(p.seed + 1).normal(0, p.noise_sd, img.shape)
