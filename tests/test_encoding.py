@@ -226,3 +226,27 @@ def test_skeleton_mode_traces_letters_as_paths():
     for letter, closed in (("L", False), ("O", True)):
         pat = edge_trace(render_letter(letter=letter), VEST.rows, VEST.cols, mode="skeleton")
         assert pat.points and (0 in pat.closed) == closed, letter
+
+
+@pytest.mark.parametrize("params", [
+    dict(surface="ball"), dict(surface="vase", rotation_deg=55, size=1.0),
+    dict(surface="uneven", center_x=0.02, center_y=0.97, size=0.9, noise_sd=3, seed=4),
+    dict(surface="cone", center_x=1.0, center_y=0.0, width=37, height=300)])
+def test_a_surface_shaded_in_its_window_is_the_surface_shaded_over_the_whole_image(params):
+    """render_surface shades only the part of the image that holds the object; the pixels
+    are those of shading every pixel (seed 000 eq. 1 at 4 x 4 sub-pixels)."""
+    from vtexp.stimuli.surfaces import SUPERSAMPLE as ss, SurfaceParams, render_surface, \
+        shade, surface_height
+
+    p = SurfaceParams(**params)
+    z, mask = surface_height(_supersample=ss, **params)
+    e = shade(z, mask, 1.0 / ss)
+    cover = mask.reshape(p.height, ss, p.width, ss).mean(axis=(1, 3))
+    lit = e.reshape(p.height, ss, p.width, ss).sum(axis=(1, 3))
+    e_pix = np.where(cover >= 0.5, lit / np.maximum(cover * ss * ss, 1), 0.0)
+    img = p.background + (p.albedo - p.background) * e_pix
+    if p.noise_sd > 0:
+        img = img + np.random.default_rng(p.seed + 1).normal(0, p.noise_sd, img.shape)
+    whole = np.clip(np.round(img), 0, 255).astype(np.uint8)
+    assert (render_surface(**params) == whole).all()
+    assert (whole != p.background).sum() > 20                 # an object was drawn
