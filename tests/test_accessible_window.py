@@ -137,7 +137,13 @@ def _session(study, audio, display, tmp_path):
                 return
             kb.focus(r.win)
             time.sleep(0.2)
-            wait_for(lambda: quiet(r))   # heard it all
+            if audio:                    # the instructions have begun to be said: before
+                first = r.speech.phrase("headphones")   # (their clips being made) it is
+                if not wait_for(lambda: speaking(first) or any(   # quiet too
+                        p.text == first for p in r.speech.played)):
+                    problems.append("the instructions were not said")
+                    return
+            wait_for(lambda: quiet(r), timeout=60)   # heard it all
             kb.press("space")
             for n, trial_keys in enumerate(keys, start=1):
                 qi, asked = 0, -1
