@@ -183,9 +183,35 @@ def _wait(cond, proc, timeout: float) -> bool:
     return True
 
 
+#: Put after the script's PsychoPy imports: every flip waits for the next 1/60 s, as a
+#: flip on a 60 Hz lab monitor waits for its refresh. Xvfb's flip returns at once, and the
+#: script would draw as fast as Mesa's software OpenGL can, a core busy drawing frames that
+#: do not change (as tests/conftest.py's TEST_DISPLAY_HZ, for vtexp's own window).
+PACED_FLIP = """
+import time as _time
+_flip, _next_flip = visual.Window.flip, [0.0]
+
+
+def _flip_at_60_hz(self, *args, **kwargs):
+    now = _time.perf_counter()
+    if now < _next_flip[0]:
+        _time.sleep(_next_flip[0] - now)
+    _next_flip[0] = max(now, _next_flip[0]) + 1 / 60
+    return _flip(self, *args, **kwargs)
+
+
+visual.Window.flip = _flip_at_60_hz
+"""
+
+
 def _sixty_hz(script: str) -> str:
-    """Xvfb has no refresh to measure: the window's frame rate is taken as 60 Hz, a lab
-    monitor's, instead of measured (which takes about 4 s)."""
+    """Xvfb has no refresh to measure, nor to wait for: the window's frame rate is taken
+    as 60 Hz, a lab monitor's, instead of measured (which takes about 4 s), and each flip
+    waits for it (PACED_FLIP)."""
+    anchor = ("from psychopy import sound, gui, visual, core, data, event, logging, clock, "
+              "colors, layout, hardware\n")
+    assert script.count(anchor) == 1
+    script = script.replace(anchor, anchor + PACED_FLIP)
     return script.replace("win.getActualFrameRate(", "(lambda **_: 60.0)(")
 
 
