@@ -46,7 +46,6 @@ import math
 import os
 import platform
 import signal
-import statistics
 import subprocess
 import sys
 import time

@@ -86,7 +86,7 @@ def screenshot(html: Path, png: Path, width: int = 1280, height: int = 2400) -> 
 
 # --------------------------------------------------------------------------- figures
 
-def _corners(t, renderer) -> "np.ndarray":
+def _corners(t, renderer):
     """The four corners of a text's box as drawn: rotated text is a rotated rectangle,
     whose axis-aligned box (what ``get_window_extent`` gives) would cover its
     neighbours' without a glyph touching. The rectangle's centre is its

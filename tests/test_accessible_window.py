@@ -16,7 +16,6 @@ import importlib.util
 import json
 import os
 import shutil
-import subprocess
 import threading
 import time
 from pathlib import Path
@@ -407,9 +406,7 @@ def test_the_pause_screen_during_a_device_fault(display, tmp_path):
         shown.append(r.screen)
         r.capture(OUT / "screens-issue13" / "paused.png")
         raise DeviceError("stop here")
-    from vtexp.devices.sim import SimDevice
     calls = [0]
-    real = SimDevice._play
 
     def failing(self, schedule):
         calls[0] += 1

@@ -12,16 +12,15 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pandas as pd
 import pytest
 
 from conftest import MINIMAL, ROOT, run_cli, run_printed, write_experiment
 from vtexp.devices import open_device
-from vtexp.errors import DeviceError, InputError, SessionError
+from vtexp.errors import DeviceError, SessionError
 from vtexp.experiment import load_experiment
-from vtexp.lock import SessionBusy, SessionLock
+from vtexp.lock import SessionLock
 from vtexp.model import DeviceProfile
 from vtexp.responders import make_responder
 from vtexp.session import (SessionOptions, SessionPaths, TrialDone, mark_dead_sessions,

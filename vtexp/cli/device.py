@@ -272,16 +272,17 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     if args.trace or args.insert:
         raise InputError("applies to --firmware avr or host only",
                          key="--trace" if args.trace else "--insert")
-    trace = None
+    trace = None                # or, with --verbose, each message as it passes
     if args.verbose:
         t0 = time.perf_counter()
 
-        def trace(direction: str, item: object) -> None:
+        def verbose(direction: str, item: object) -> None:
             from ..devices.monitor import ARROWS
             t = (time.perf_counter() - t0) * 1000
             text = (f"BAD FRAME ({item.kind}: {item})" if isinstance(item, wire.WireError)
                     else wire.describe(item))
             print(f"{t:10.3f} ms  {ARROWS[direction]}  {text}", file=sys.stderr, flush=True)
+        trace = verbose
     over = {k: v for k, v in (("rows", args.rows), ("cols", args.cols)) if v is not None}
     emu = PtyEmulator.for_profile(
         profile, faults=Faults(drop_rate=args.drop, corrupt_rate=args.corrupt,

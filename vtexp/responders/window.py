@@ -54,8 +54,8 @@ from ..clock import REAL, Clock
 from ..design import Trial
 from ..errors import InputError, SessionAborted, SessionError
 from .base import Replay, Response
-from .layout import GAP, LINE as LAYOUT_LINE, MIN_TEXT, PAD as LAYOUT_PAD, Box, Label, \
-    LayoutError, Screen, grid as layout_grid, needed_height, text_block
+from .layout import GAP, LINE as LAYOUT_LINE, MIN_TEXT, PAD as LAYOUT_PAD, Box, Cell, \
+    Label, LayoutError, Screen, grid as layout_grid, needed_height, text_block
 from .speech import PsychopyAudio, Speech, Voice, masking_noise, phrase_book
 
 # At most this many frames a second. A display that waits for its refresh (vsync, as a
@@ -733,7 +733,7 @@ class WindowResponder:
                                                 range_h), s, s, "range"))
 
     def _message_screen(self, name: str, text: str, hint: str = "") -> None:
-        win = self.open()
+        self.open()
         a, s = self.aspect, self.smallest
         screen = Screen(name)
         line = s * (LAYOUT_LINE + 2 * LAYOUT_PAD)
