@@ -152,7 +152,7 @@ def simulate_studies(setup: Setup, seed: int, studies: list[int], n: int, *,
 # --------------------------------------------------------------------------- tests per study
 
 def effect_label(effect: str, a) -> str:
-    """How an ANOVA effect is named in the power table: ``timing × intensity (rate, display = dynamic)``."""
+    """An effect's name in the power table: ``timing × intensity (rate, display = dynamic)``."""
     where = "".join(f", {k} = {v}" for k, v in a.where.items())
     return f"{effect.replace(':', ' × ')} ({a.dv}{where})"
 
@@ -261,7 +261,8 @@ class StatedSetup:
         x = np.concatenate([self.stated.draw(seed, s, n) for s in studies])
         df = pd.DataFrame({
             "study": np.repeat(studies, n * k),
-            "participant": np.repeat([participant_id(s, i) for s in studies for i in range(n)], k),
+            # numbers, not names: unique in the chunk, and far quicker to group by
+            "participant": np.repeat(np.arange(len(studies) * n), k),
             "condition": np.tile(np.arange(k), n * len(studies)), "value": x.ravel()})
         for f, spec in self.lx.experiment.factors.items():
             levels = np.array([c[f] for c in self.stated.conditions], dtype=object)

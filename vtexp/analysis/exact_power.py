@@ -183,10 +183,11 @@ def ncf_power(df1, df2, lam, alpha: float = 0.05):
     """``P(F'(df1, df2, λ) > F_{1−α}(df1, df2))``: the power of an F test (λ = 0: α)."""
     df1, df2, lam = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (df1, df2, lam)))
     crit = stats.f.isf(alpha, df1, df2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        p = np.where(lam > 0, stats.ncf.sf(crit, df1, df2, np.maximum(lam, 1e-300)),
-                     stats.f.sf(crit, df1, df2))
-    return p
+    p = np.asarray(stats.f.sf(crit, df1, df2), dtype=float).copy()
+    on = lam > 0
+    if on.any():
+        p[on] = stats.ncf.sf(crit[on], df1[on], df2[on], lam[on])
+    return p if p.ndim else float(p)
 
 
 def exact_anova(design: ExactDesign, n: int, alpha: float = 0.05) -> pd.DataFrame:

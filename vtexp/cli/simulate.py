@@ -16,7 +16,7 @@ def register(sub) -> None:
         "simulate", help="run whole studies of model participants: power of each effect",
         description="Run M simulated studies of N model participants each through the "
                     "experiment's real pipeline and declared analyses, and report for each "
-                    "effect the share of studies with p < alpha (power, 95 %% Wilson "
+                    "effect the share of studies with p < alpha (power, 95 % Wilson "
                     "interval) and the predicted mean of every condition.")
     s.add_argument("file", metavar="EXPERIMENT")
     s.add_argument("--participants", "-n", type=int, default=15, metavar="N",

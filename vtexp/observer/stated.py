@@ -45,6 +45,8 @@ KEYS = ("kind", "description", "question", "means", "sd", "r")
 def stated_kind(path: Path | str) -> bool:
     """Whether an observer file states a design (``kind: stated``) rather than the model
     participant's parameters (no ``kind``). Any other kind is refused."""
+    if not Path(path).is_file():
+        return False                  # the parameters' loader says so, as it always has
     doc = load_yaml(path)
     if not isinstance(doc.data, dict) or "kind" not in doc.data:
         return False
