@@ -127,8 +127,9 @@ def _print_exact(res, exact, out=print) -> None:
             "a little lower")
 
 
-def _print_means(res, factors: list[str], out=print) -> None:
-    out("\nPredicted mean per condition (all simulated trials):")
+def _print_means(res, factors: list[str], out=print, stated: bool = False) -> None:
+    out("\nMean per condition (all simulated participants' stated measures):" if stated
+        else "\nPredicted mean per condition (all simulated trials):")
     t = res.means
     for (q, meas), g in t.groupby(["question", "measure"], sort=False):
         out(f"  {q} ({meas}):")
@@ -216,7 +217,7 @@ def _one_n(args, lx, workers, executor, where) -> int:
     if args.exact:
         exact = args.stated.exact(res.n, res.alpha)
         _print_exact(res, exact)
-    _print_means(res, factors)
+    _print_means(res, factors, stated=args.stated is not None)
     from ..session import environment
     doc = {"experiment": lx.experiment.name, "experiment_file": str(lx.path),
            "experiment_sha256": lx.sha256, "environment": environment(),
