@@ -200,7 +200,8 @@ def test_simulated_power_lies_within_its_interval_of_the_exact_power():
     file), 15 participants fewer than the paper: 2000 studies of 8. Each declared ANOVA
     effect's simulated power (the real run_power: rm_anova_batch, the declared
     corrections, Wilson intervals) must hold the exact power in its 95 % interval. The
-    intervals are narrow enough to tell N = 8 from N = 6 or 10."""
+    intervals are narrow enough to tell N = 8 from N = 6 or 10. The display effect, whose
+    cells average unequal numbers of modes, is checked at N = 4, where it is not 1."""
     setup = Setup.load(BALL, params_file=BALL_STATED)
     n = 8
     exact = setup.exact(n).set_index("effect")["exact_power"]
@@ -218,6 +219,13 @@ def test_simulated_power_lies_within_its_interval_of_the_exact_power():
     # the means drawn are the stated ones
     means = res.means.set_index(["display", "timing", "intensity"])["predicted"]
     assert means[("dynamic", "varied", "linear")] == pytest.approx(0.747, abs=0.01)
+    # display averages 2 static against 4 dynamic modes: at N = 4 its power is mid-range
+    display = exact.index[0]
+    p4 = setup.exact(4).set_index("effect").loc[display, "exact_power"]
+    assert 0.6 < p4 < 0.95
+    row = run_power(BALL, 4, 1000, seed=22, workers=1, params_file=BALL_STATED).table \
+        .set_index("effect").loc[display]
+    assert row["ci_low"] <= p4 <= row["ci_high"], (p4, row["power"])
 
 
 def test_effects_with_several_df_are_exact_under_compound_symmetry(tmp_path):
