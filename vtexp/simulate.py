@@ -15,6 +15,11 @@ experiment's text and SHA-256 (:class:`ExperimentSource`), never a path, checks 
 hash, and keeps the prepared experiment for the tasks that follow. Every random
 number is keyed by (seed, study, participant), so the table is the same whichever
 worker ran which study.
+
+An observer file of ``kind: stated`` puts a stated design in the model participant's
+place (:class:`StatedSetup`): each participant's measure per condition is drawn from
+stated means, SDs and correlations and goes through the same tests, whose power is then
+also known exactly (:mod:`vtexp.analysis.exact_power`), a check of all of the above.
 """
 
 from __future__ import annotations
