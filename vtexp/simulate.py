@@ -15,11 +15,17 @@ experiment's text and SHA-256 (:class:`ExperimentSource`), never a path, checks 
 hash, and keeps the prepared experiment for the tasks that follow. Every random
 number is keyed by (seed, study, participant), so the table is the same whichever
 worker ran which study.
+
+An observer file of ``kind: stated`` puts a stated design in the model participant's
+place (:class:`StatedSetup`): each participant's measure per condition is drawn from
+stated means, SDs and correlations and goes through the same tests, whose power is then
+also known exactly (:mod:`vtexp.analysis.exact_power`), a check of all of the above.
 """
 
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -34,6 +40,7 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
+from .analysis import exact_power
 from .analysis.anova import MissingCellsWarning, rm_anova_batch
 from .analysis.ordinal import friedman
 from .analysis.pipeline import _subset, participant_measures
@@ -45,6 +52,7 @@ from .errors import InputError
 from .experiment import LoadedExperiment, load_experiment, load_experiment_text
 from .model import Condition, PlayReport
 from .observer.model import ObserverModel, question_columns
+from .observer.stated import StatedMeasures, load_stated, stated_kind
 from .responders.base import correct_answer
 
 
@@ -60,8 +68,12 @@ class Setup:
 
     @classmethod
     def load(cls, path: Path | str, *, params_file=None, overrides: dict | None = None,
-             lx: LoadedExperiment | None = None) -> Setup:
+             lx: LoadedExperiment | None = None) -> Setup | StatedSetup:
+        """The experiment made ready; an observer file of ``kind: stated`` gives a
+        :class:`StatedSetup` instead (measures drawn from stated means, no model)."""
         lx = lx or load_experiment(path)
+        if params_file is not None and stated_kind(params_file):
+            return StatedSetup.load(lx, params_file)
         model = ObserverModel.for_experiment(lx, params_file=params_file, overrides=overrides)
         conditions = compile_conditions(lx, model.profile)
         played = []
@@ -76,6 +88,18 @@ class Setup:
     @property
     def factors(self) -> list[str]:
         return list(self.lx.experiment.factors)
+
+    def studies(self, seed: int, studies: list[int], n: int) -> pd.DataFrame:
+        """The trials of ``studies`` of ``n`` model participants (:func:`simulate_studies`)."""
+        return simulate_studies(self, seed, studies, n)
+
+    def measures(self, trials: pd.DataFrame, dv: str, by: list[str], where: dict
+                 ) -> pd.DataFrame:
+        """One value of ``dv`` per participant and cell of ``by``, among the trials ``where``."""
+        return participant_measures(_subset(trials, where), dv, by)
+
+    def condition_means(self, trials: pd.DataFrame) -> pd.DataFrame:
+        return condition_means(self, trials)
 
 
 def participant_id(study: int, i: int) -> str:
@@ -132,13 +156,19 @@ def simulate_studies(setup: Setup, seed: int, studies: list[int], n: int, *,
 
 # --------------------------------------------------------------------------- tests per study
 
-def effect_tests(setup: Setup, trials: pd.DataFrame) -> pd.DataFrame:
+def effect_label(effect: str, a) -> str:
+    """An effect's name in the power table: ``timing × intensity (rate, display = dynamic)``."""
+    where = "".join(f", {k} = {v}" for k, v in a.where.items())
+    return f"{effect.replace(':', ' × ')} ({a.dv}{where})"
+
+
+def effect_tests(setup: Setup | StatedSetup, trials: pd.DataFrame) -> pd.DataFrame:
     """p of every declared ANOVA effect and Friedman test, for each study in ``trials``."""
     out = []
     spec = setup.spec
     for i, a in enumerate(spec.anova):
         within = a.within or setup.factors
-        m = participant_measures(_subset(trials, a.where), a.dv, within)
+        m = setup.measures(trials, a.dv, within, a.where)
         m["study"] = m["participant"].map(trials.drop_duplicates("participant")
                                           .set_index("participant")["study"])
         with warnings.catch_warnings():
@@ -151,13 +181,12 @@ def effect_tests(setup: Setup, trials: pd.DataFrame) -> pd.DataFrame:
         p = np.where(gg, t["p_gg"], t["p"])
         if a.correction == "HF":
             p = np.where(t["df1"] > 1, t["p_hf"], t["p"])
-        where = "".join(f", {k} = {v}" for k, v in a.where.items())
         out.append(pd.DataFrame({
             "study": t["study"], "test": f"anova {i + 1}",
-            "effect": [f"{e.replace(':', ' × ')} ({a.dv}{where})" for e in t["effect"]],
+            "effect": [effect_label(e, a) for e in t["effect"]],
             "p": p, "pes": t["pes"]}))
     for i, o in enumerate(spec.ordinal):
-        m = participant_measures(_subset(trials, o.where), o.dv, [o.factor])
+        m = setup.measures(trials, o.dv, [o.factor], o.where)
         where = "".join(f", {k} = {v}" for k, v in o.where.items())
         for s, ms in m.groupby(trials.drop_duplicates("participant").set_index("participant")
                                ["study"].reindex(m["participant"]).to_numpy()):
@@ -182,6 +211,147 @@ def condition_means(setup: Setup, trials: pd.DataFrame) -> pd.DataFrame:
     t["measure"] = np.where(t["correct"].notna(), "rate", "mean answer")
     g = t.groupby(["question", "measure", *setup.factors], observed=True)["value"]
     return g.agg(total="sum", count="count").reset_index()
+
+
+# --------------------------------------------------------------------------- stated designs
+
+def _reads(where: dict, question: str) -> bool:
+    """Whether a test's ``where`` keeps the trials of ``question`` (or selects no question)."""
+    v = where.get("question")
+    return v is None or v == question or (isinstance(v, list) and question in v)
+
+
+@dataclass
+class StatedSetup:
+    """An experiment whose participants' measures are drawn from a stated design.
+
+    ``--observer FILE`` with ``kind: stated`` (:mod:`vtexp.observer.stated`): each
+    participant's measure in each condition is drawn from the stated multivariate
+    normal, and the experiment's declared tests run on it exactly as on model
+    participants' rates or ratings (the same ``rm_anova_batch``, corrections, Friedman
+    tests, Wilson intervals and N search). No pipeline runs and no trial is simulated;
+    a participant's table has one row per condition, its measure in ``value``. The
+    power of the declared ANOVAs is then also known exactly (:meth:`exact`).
+    """
+
+    lx: LoadedExperiment
+    stated: StatedMeasures
+    spec: AnalysisSpec
+
+    @classmethod
+    def load(cls, lx: LoadedExperiment, params_file) -> StatedSetup:
+        stated = load_stated(params_file, lx)
+        exp = lx.experiment
+        scored = any(q.kind == "choice" and q.correct is not None for q in exp.asked())
+        spec = exp.analysis or default_spec(list(exp.factors), exp.stimulus_factor(), scored)
+        setup = cls(lx, stated, spec)
+        q = setup.question           # only the tests of the question the means are of
+        setup.spec = spec.model_copy(update={
+            "anova": [a for a in spec.anova if _reads(a.where, q)],
+            "ordinal": [o for o in spec.ordinal if _reads(o.where, q)]})
+        return setup
+
+    @property
+    def factors(self) -> list[str]:
+        return list(self.lx.experiment.factors)
+
+    @property
+    def question(self) -> str:
+        """The question whose measure is stated (the file's, or the experiment's first)."""
+        return self.stated.question or self.lx.experiment.asked()[0].name
+
+    def studies(self, seed: int, studies: list[int], n: int) -> pd.DataFrame:
+        """``n`` participants of each study: one row per participant and condition."""
+        k = len(self.stated.conditions)
+        x = np.concatenate([self.stated.draw(seed, s, n) for s in studies])
+        df = pd.DataFrame({
+            "study": np.repeat(studies, n * k),
+            # numbers, not names: unique in the chunk, and far quicker to group by
+            "participant": np.repeat(np.arange(len(studies) * n), k),
+            "condition": np.tile(np.arange(k), n * len(studies)), "value": x.ravel()})
+        for f, spec in self.lx.experiment.factors.items():
+            levels = np.array([c[f] for c in self.stated.conditions], dtype=object)
+            df[f] = pd.Categorical(levels[df["condition"].to_numpy()],
+                                   categories=spec.level_names, ordered=True)
+        df["question"] = self.question
+        return df
+
+    def measures(self, trials: pd.DataFrame, dv: str, by: list[str], where: dict
+                 ) -> pd.DataFrame:
+        """The stated measure (standing for ``dv``) per participant and cell of ``by``: the
+        mean over the conditions in the cell, each condition weighing the same (as each
+        condition's trials do in a session with equal repetitions)."""
+        t = _subset(trials, where)
+        out = (t.groupby(["participant", *by], observed=True, sort=True)["value"]
+               .agg(value="mean", n_trials="size").reset_index())
+        return out.rename(columns={"value": dv})
+
+    def condition_means(self, trials: pd.DataFrame) -> pd.DataFrame:
+        g = trials.groupby(["question", *self.factors], observed=True)["value"]
+        out = g.agg(total="sum", count="count").reset_index()
+        out.insert(1, "measure", "stated measure")
+        return out
+
+    # ------------------------------------------------------------------ exact power
+    def exact_designs(self) -> list[tuple[int, object, exact_power.ExactDesign]]:
+        """For each declared ANOVA (its index, spec), the stated design it analyses: the
+        conditions its ``where`` keeps, averaged over the factors it leaves out, as
+        :meth:`measures` averages them (a linear map ``A``: means ``A μ``, covariance
+        ``A Σ Aᵀ``, exactly those of the averaged measures)."""
+        exp = self.lx.experiment
+        conds = self.stated.conditions
+        out = []
+        for i, a in enumerate(self.spec.anova):
+            within = a.within or self.factors
+            keep = [j for j, c in enumerate(conds)
+                    if all(c[f] == v or (isinstance(v, list) and c[f] in v)
+                           for f, v in a.where.items() if f in exp.factors)]
+            levels = {f: [lv for lv in exp.factors[f].level_names
+                          if any(conds[j][f] == lv for j in keep)] for f in within}
+            cells = list(itertools.product(*levels.values()))
+            A = np.zeros((len(cells), len(conds)))
+            for ci, cell in enumerate(cells):
+                members = [j for j in keep if tuple(conds[j][f] for f in within) == cell]
+                if not members:
+                    raise InputError(
+                        "no condition has " + ", ".join(f"{f} = {v}" for f, v in
+                                                        zip(within, cell))
+                        + f", so the ANOVA of {' × '.join(within)} has an empty cell",
+                        path=str(self.lx.path), key=f"analysis.anova.{i}")
+                A[ci, members] = 1.0 / len(members)
+            design = exact_power.ExactDesign(levels, A @ self.stated.means,
+                                             A @ self.stated.cov @ A.T)
+            out.append((i, a, design))
+        return out
+
+    def exact(self, n: int, alpha: float = 0.05) -> pd.DataFrame:
+        """The exact power of every declared ANOVA effect with ``n`` participants
+        (:func:`vtexp.analysis.exact_power.exact_anova`): ``effect`` (named as in the
+        power table), ``test``, ``exact_power``, ``df1``, ``df2``, ``lambda``, ``pes``,
+        ``correction`` (the declared one: the exact value is for the uncorrected F)."""
+        rows = []
+        for i, a, design in self.exact_designs():
+            t = exact_power.exact_anova(design, n, alpha)
+            for _, r in t.iterrows():
+                rows.append({"effect": effect_label(r["effect"], a), "test": f"anova {i + 1}",
+                             "exact_power": float(r["power"]), "df1": float(r["df1"]),
+                             "df2": float(r["df2"]), "lambda": float(r["lambda"]),
+                             "pes": float(r["pes"]), "correction": a.correction})
+        return pd.DataFrame(rows, columns=["effect", "test", "exact_power", "df1", "df2",
+                                           "lambda", "pes", "correction"])
+
+    def exact_smallest_n(self, target: float, alpha: float = 0.05, n_max: int = 200
+                         ) -> pd.DataFrame:
+        """For each declared ANOVA effect, the smallest N whose exact power reaches
+        ``target`` (:func:`vtexp.analysis.exact_power.smallest_n`); None above ``n_max``."""
+        rows = []
+        for i, a, design in self.exact_designs():
+            t = exact_power.smallest_n(design, target, alpha, n_max=n_max)
+            for _, r in t.iterrows():
+                rows.append({"effect": effect_label(r["effect"], a), "test": f"anova {i + 1}",
+                             "smallest_n": None if r["n"] is None or r["n"] != r["n"]
+                             else int(r["n"]), "power": float(r["power"])})
+        return pd.DataFrame(rows, columns=["effect", "test", "smallest_n", "power"])
 
 
 # --------------------------------------------------------------------------- workers
@@ -266,8 +436,8 @@ _LIMIT = None
 
 def _work(args) -> tuple[pd.DataFrame, pd.DataFrame, int]:
     seed, studies, n = args
-    trials = simulate_studies(_SETUP, seed, studies, n)
-    return effect_tests(_SETUP, trials), condition_means(_SETUP, trials), len(studies)
+    trials = _SETUP.studies(seed, studies, n)
+    return effect_tests(_SETUP, trials), _SETUP.condition_means(trials), len(studies)
 
 
 def prepared(source: ExperimentSource) -> Setup:
@@ -288,8 +458,8 @@ def work_chunk(source: ExperimentSource, seed: int, studies: list[int], n: int
     if _LIMIT is None:
         _LIMIT = _one_blas_thread()
     setup = prepared(source)
-    trials = simulate_studies(setup, seed, studies, n)
-    return effect_tests(setup, trials), condition_means(setup, trials), len(studies)
+    trials = setup.studies(seed, studies, n)
+    return effect_tests(setup, trials), setup.condition_means(trials), len(studies)
 
 
 def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:

@@ -16,7 +16,7 @@ def register(sub) -> None:
         "simulate", help="run whole studies of model participants: power of each effect",
         description="Run M simulated studies of N model participants each through the "
                     "experiment's real pipeline and declared analyses, and report for each "
-                    "effect the share of studies with p < alpha (power, 95 %% Wilson "
+                    "effect the share of studies with p < alpha (power, 95 % Wilson "
                     "interval) and the predicted mean of every condition.")
     s.add_argument("file", metavar="EXPERIMENT")
     s.add_argument("--participants", "-n", type=int, default=15, metavar="N",
@@ -30,7 +30,15 @@ def register(sub) -> None:
                    help="give up the --target-power search above N (default 200)")
     s.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
     s.add_argument("--observer", metavar="FILE",
-                   help="observer parameters (default protocols/observers/default.yaml)")
+                   help="observer parameters (default protocols/observers/default.yaml), or "
+                        "a stated design (kind: stated): each participant's measure per "
+                        "condition drawn from stated means, SDs and correlations, whose "
+                        "power is known exactly (see --exact)")
+    s.add_argument("--exact", action="store_true",
+                   help="with a stated design (--observer FILE of kind: stated): also print "
+                        "each ANOVA effect's exact power (noncentral F, as Superpower's "
+                        "ANOVA_exact) beside the simulated one, and with --target-power "
+                        "the exact smallest N")
     s.add_argument("--workers", type=int, default=0,
                    help="processes (default: one per core)")
     s.add_argument("--executor", default="local", metavar="SPEC",
@@ -89,8 +97,39 @@ def _print_power(res, out=print) -> None:
             f" {r['median_p']:9.3g} {pes:>9}")
 
 
-def _print_means(res, factors: list[str], out=print) -> None:
-    out("\nPredicted mean per condition (all simulated trials):")
+def _n_text(n, power: float, n_max: int) -> str:
+    found = n is not None and n == n
+    return (f"N = {int(n)} (power {power:.3f})" if found
+            else f"not reached by N = {n_max} (power {power:.3f})")
+
+
+def _print_exact(res, exact, out=print) -> None:
+    """The exact power of each ANOVA effect beside the simulated one and its interval."""
+    out(f"\nExact power at N = {res.n} (noncentral F from the stated means, SDs and "
+        "correlations; uncorrected F, Lakens & Caldwell 2021):")
+    out(f"  {'effect':<58} {'exact':>6}  {'simulated [95% CI]':<24} in CI")
+    sim = res.table.set_index("effect")
+    corrected = False
+    for _, r in exact.iterrows():
+        s = sim.loc[r["effect"]] if r["effect"] in sim.index else None
+        mark = ""
+        if r["df1"] > 1 and r["correction"] != "none":
+            mark, corrected = " *", True
+        if s is None:
+            out(f"  {r['effect']:<58} {r['exact_power']:6.3f}{mark}")
+            continue
+        inside = "yes" if s["ci_low"] <= r["exact_power"] <= s["ci_high"] else "no"
+        out(f"  {r['effect']:<58} {r['exact_power']:6.3f}  {s['power']:.3f} "
+            f"[{s['ci_low']:.3f}, {s['ci_high']:.3f}]{'':<4} {inside}{mark}")
+    if corrected:
+        out("  * the declared ANOVA corrects this effect for sphericity (correction: auto, GG "
+            "or HF), the exact value is for the uncorrected F: the simulated power can be "
+            "a little lower")
+
+
+def _print_means(res, factors: list[str], out=print, stated: bool = False) -> None:
+    out("\nMean per condition (all simulated participants' stated measures):" if stated
+        else "\nPredicted mean per condition (all simulated trials):")
     t = res.means
     for (q, meas), g in t.groupby(["question", "measure"], sort=False):
         out(f"  {q} ({meas}):")
@@ -115,6 +154,20 @@ def cmd_simulate(args) -> int:
         raise InputError("--target-power searches one design; with --sweep, list the Ns "
                          "under participants:", key="--target-power")
     lx, _ = load_and_compile(args.file)        # clear errors before any worker starts
+    stated = None
+    if args.observer is not None:
+        from ..observer.stated import stated_kind
+        if stated_kind(args.observer):
+            from ..simulate import StatedSetup
+            stated = StatedSetup.load(lx, args.observer)
+    if args.exact and stated is None:
+        raise InputError("gives the exact power of a stated design: pass --observer FILE "
+                         "with kind: stated (e.g. protocols/observers/"
+                         "circle_vs_rectangle_stated.yaml)", key="--exact")
+    if args.exact and args.sweep:
+        raise InputError("prints the exact power of one design; leave it out with --sweep",
+                         key="--exact")
+    args.stated = stated
     if lx.experiment.adaptive is not None:
         raise InputError("vtexp simulate plays the fixed levels of a design; this experiment "
                          "chooses its levels adaptively. Run sessions with --responder "
@@ -148,8 +201,10 @@ def _one_n(args, lx, workers, executor, where) -> int:
     from ..simulate import run_power, smallest_n
 
     factors = list(lx.experiment.factors)
-    print(f"{lx.experiment.name}: {args.studies} studies of {args.participants} model "
-          f"participants, {where}", file=sys.stderr)
+    who = "model participants" if args.stated is None else \
+        f"participants drawn from the stated design {args.observer}"
+    print(f"{lx.experiment.name}: {args.studies} studies of {args.participants} {who}, "
+          f"{where}", file=sys.stderr)
     advance, stop = _progress(args.studies, args.quiet, f"N = {args.participants}")
     try:
         res = run_power(args.file, args.participants, args.studies, alpha=args.alpha,
@@ -158,7 +213,11 @@ def _one_n(args, lx, workers, executor, where) -> int:
     finally:
         stop()
     _print_power(res)
-    _print_means(res, factors)
+    exact = None
+    if args.exact:
+        exact = args.stated.exact(res.n, res.alpha)
+        _print_exact(res, exact)
+    _print_means(res, factors, stated=args.stated is not None)
     from ..session import environment
     doc = {"experiment": lx.experiment.name, "experiment_file": str(lx.path),
            "experiment_sha256": lx.sha256, "environment": environment(),
@@ -166,6 +225,7 @@ def _one_n(args, lx, workers, executor, where) -> int:
            "seed": args.seed, "observer": args.observer or "protocols/observers/default.yaml",
            "seconds": round(res.seconds, 2), "workers": workers, "executor": args.executor,
            "power": res.table.to_dict(orient="records"),
+           **({} if exact is None else {"exact_power": exact.to_dict(orient="records")}),
            "predicted": res.means.astype(object).where(res.means.notna(), None)
            .to_dict(orient="records")}
     if args.target_power is not None:
@@ -179,15 +239,26 @@ def _one_n(args, lx, workers, executor, where) -> int:
         table, _ = smallest_n(args.file, args.target_power, args.studies, alpha=args.alpha,
                               seed=args.seed, n_max=args.max_participants, workers=workers,
                               params_file=args.observer, on_step=step, executor=executor)
-        print(f"\nSmallest N for power >= {args.target_power}:")
+        exact_n = None
+        if args.exact:
+            exact_n = args.stated.exact_smallest_n(args.target_power, args.alpha,
+                                                   args.max_participants) \
+                .set_index("effect")
+        print(f"\nSmallest N for power >= {args.target_power}"
+              + (" (simulated; exact)" if exact_n is not None else "") + ":")
         for _, r in table.iterrows():
-            found = r["smallest_n"] is not None and r["smallest_n"] == r["smallest_n"]
-            n = f"N = {int(r['smallest_n'])}" if found else \
-                f"not reached by N = {args.max_participants}"
-            print(f"  {r['effect']:<58} {n}  (power {r['power']:.3f})")
+            n = _n_text(r["smallest_n"], r["power"], args.max_participants)
+            if exact_n is not None and r["effect"] in exact_n.index:
+                e = exact_n.loc[r["effect"]]
+                n += f";  exact {_n_text(e['smallest_n'], e['power'], args.max_participants)}"
+            print(f"  {r['effect']:<58} {n}")
         doc["target_power"] = args.target_power
         doc["smallest_n"] = table.astype(object).where(table.notna(), None) \
             .to_dict(orient="records")
+        if exact_n is not None:
+            t = exact_n.reset_index()
+            doc["exact_smallest_n"] = t.astype(object).where(t.notna(), None) \
+                .to_dict(orient="records")
     if args.json:
         Path(args.json).write_text(json.dumps(doc, indent=2, default=str) + "\n",
                                    encoding="utf-8")
