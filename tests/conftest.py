@@ -13,6 +13,7 @@ import time
 import pytest
 from hypothesis import HealthCheck, settings
 
+import inprocess
 from inprocess import run_in_process
 
 # Hypothesis's deadline (200 ms an example) and its too-slow checks are timings: on two
@@ -53,6 +54,7 @@ def pytest_collection_finish(session):
     not the link)."""
     gc.collect()
     gc.freeze()
+    inprocess.RUN_FROZEN = True
 
 
 def pytest_collection_modifyitems(config, items):
