@@ -197,10 +197,15 @@ class ObserverModel:
         return report
 
     # ------------------------------------------------------------------ geometry
-    def _support(self, reports: list[PlayReport]) -> np.ndarray:
-        cols = self.profile.geometry.cols
-        return np.array(sorted({p.row * cols + p.col for r in reports for p in r.pulses}),
-                        dtype=int)
+    def skin(self, who: Participant) -> Skin:
+        """What shapes participant ``who``'s percept: their own blur, integration time and
+        levels; the localisation SD in the same ratio to their blur as the site's
+        (P5)."""
+        p = self.params
+        sigma_s = p.localisation_ratio(self.site) * who.two_point_threshold_mm
+        return Skin(who.two_point_threshold_mm, who.integration_ms, who.intensity_levels,
+                    localisation_sd_mm=sigma_s,
+                    speed_sd_mm_s=p.speed_prior_mm_s)
 
     def geometry(self, question, condition: Condition, played: PlayReport,
                  who: Participant, played_key: tuple | None = None) -> _Geometry:
@@ -213,7 +218,7 @@ class ObserverModel:
         g = self._geometry.get(key)
         if g is not None:
             return g
-        skin = Skin(who.two_point_threshold_mm, who.integration_ms, who.intensity_levels)
+        skin = self.skin(who)
         if question.kind == "number":
             g = _Geometry(np.zeros((0, 0)), np.zeros((0, 0)),
                           turns=winding_turns(played, self.profile, skin))
@@ -224,7 +229,7 @@ class ObserverModel:
                 a = self.spec.ratings[question.name]
                 names = [a.low, a.high]
             reports = [played] + [self.template_report(n, condition) for n in names]
-            f = features(reports, self.profile, skin, self._support(reports))
+            f = features(reports, self.profile, skin)
             D = f[:1] - f[1:]
             gram = (D @ D.T).astype(np.float64)
             w, V = np.linalg.eigh(gram)
@@ -303,3 +308,4 @@ def _scrambled(report: PlayReport, name: str) -> PlayReport:
     pulses = [p.model_copy(update={"row": to[(p.row, p.col)][0], "col": to[(p.row, p.col)][1]})
               for p in report.pulses]
     return report.model_copy(update={"pulses": pulses})
+
