@@ -200,12 +200,14 @@ class ObserverModel:
     def skin(self, who: Participant) -> Skin:
         """What shapes participant ``who``'s percept: their own blur, integration time and
         levels; the localisation SD in the same ratio to their blur as the site's
-        (P5)."""
+        (P5); the device's pin physics (P6)."""
         p = self.params
+        thermal = (None if p.pin_thermal is None
+                   else (p.pin_thermal.heating_ms, p.pin_thermal.cooling_ms))
         sigma_s = p.localisation_ratio(self.site) * who.two_point_threshold_mm
         return Skin(who.two_point_threshold_mm, who.integration_ms, who.intensity_levels,
                     localisation_sd_mm=sigma_s,
-                    speed_sd_mm_s=p.speed_prior_mm_s)
+                    speed_sd_mm_s=p.speed_prior_mm_s, pin_thermal=thermal)
 
     def geometry(self, question, condition: Condition, played: PlayReport,
                  who: Participant, played_key: tuple | None = None) -> _Geometry:

@@ -34,6 +34,13 @@ class PopulationSpread(Model):
     rating_bias_sd: Annotated[float, Field(ge=0, le=5)] = 0.3
 
 
+class PinThermal(Model):
+    """First-order heating and cooling of an SMA pin's wire (``percept.pin_strokes``)."""
+
+    heating_ms: Positive
+    cooling_ms: Positive
+
+
 class ObserverParams(Model):
     """One model participant (or the population's typical one)."""
 
@@ -45,6 +52,7 @@ class ObserverParams(Model):
     integration_ms: Positive | dict[str, Positive] = 40.0
     localisation_sd_mm: dict[str, Annotated[float, Field(ge=0)]] = Field(default_factory=dict)
     speed_prior_mm_s: Annotated[float, Field(ge=0)] = 0.0
+    pin_thermal: PinThermal | None = None
     efficiency: Annotated[float, Field(gt=0, le=1)] = 0.1
     decision_noise: Annotated[float, Field(ge=0)] = 1.0
     abstain_criterion: Annotated[float, Field(ge=0)] = 1.0

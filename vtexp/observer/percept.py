@@ -18,7 +18,8 @@ time,
 
   where ``x_a(t)`` is the intensity of the pulses actually played (device
   onsets, not the schedule's).
-- Each pulse's intensity is its fraction of the device's strongest drive,
+- Each pulse's intensity is its fraction of the device's strongest drive
+  (an SMA pin's: its stroke, P6, :func:`pin_strokes`),
   rounded to the participant's number of distinguishable levels L:
   ``a_q = round(a (L - 1)) / (L - 1)``.
 
@@ -49,13 +50,16 @@ import numpy as np
 from ..model import DeviceProfile, PlayReport
 
 
-def pulse_intensities(report: PlayReport, profile: DeviceProfile) -> np.ndarray:
+def pulse_intensities(report: PlayReport, profile: DeviceProfile,
+                      pin_thermal: tuple[float, float] | None = None) -> np.ndarray:
     """Each played pulse's drive as a fraction (0-1) of the device's strongest drive.
 
     Level drives: the level's effective volts over the highest level's. Pulse
-    trains: the train's mean electrical power over that of the strongest train
-    the profile allows (amplitude^2 x pulse width x frequency), an assumption:
-    the papers give no perceived-intensity curve for SMA pins.
+    trains without ``pin_thermal``: the train's mean electrical power over that of
+    the strongest train the profile allows (amplitude^2 x pulse width x frequency).
+    With ``pin_thermal = (heating_ms, cooling_ms)``: the pin's mean stroke per pulse
+    over the train (:func:`pin_strokes`, P6) over the stroke of one pulse of the
+    widest width from a cool pin.
     """
     drive = profile.drive
     out = np.zeros(len(report.pulses))
@@ -64,12 +68,58 @@ def pulse_intensities(report: PlayReport, profile: DeviceProfile) -> np.ndarray:
         top = max(volts.values()) or 1.0
         for i, p in enumerate(report.pulses):
             out[i] = volts.get(p.level, 0.0) / top if p.level is not None else 1.0
+    elif pin_thermal is not None:
+        out = pin_strokes(report, drive.amplitude_v, max(drive.pulse_width_ms), *pin_thermal)
     else:
         top = (drive.amplitude_v ** 2 * max(drive.pulse_width_ms) * max(drive.frequencies_hz))
         for i, p in enumerate(report.pulses):
             t = p.train
             out[i] = (t.amplitude_v ** 2 * t.pulse_width_ms * t.frequency_hz / top) if t else 1.0
     return np.clip(out, 0.0, 1.0)
+
+
+def pin_strokes(report: PlayReport, volts: float, widest_ms: float, heating_ms: float,
+                cooling_ms: float) -> np.ndarray:
+    """Mean stroke per pulse of each played train, over one widest pulse's from cool (P6).
+
+    An SMA pin contracts while a current pulse heats its wire and relaxes as the
+    wire cools. In a first-order model of the wire (the contracted fraction ``x``
+    moves towards 1 with time constant ``tau_h`` while a pulse heats it, and
+    decays towards 0 with ``tau_c`` while it cools),
+
+        x -> 1 - (1 - x) exp(-w (V / V0)^2 / tau_h)   during a pulse of width w
+        x -> x exp(-t / tau_c)                           over t without current     (P6)
+
+    each pulse moves the pin by ``(1 - x)(1 - exp(-w (V/V0)^2 / tau_h))``: a pin that
+    has not cooled since the last pulse (``x`` near 1) moves less. Heating scales
+    with electrical power, so with ``V^2`` relative to the profile's amplitude
+    ``V0``. The state carries over from one train on a pin to the next. What is felt
+    is the vibration's amplitude, the stroke: for a contactor as small as a pin the
+    vibrotactile threshold does not depend on frequency (Verrillo 1963, *JASA*
+    35:1962), so the frequency itself adds no weight.
+    """
+    out = np.ones(len(report.pulses))
+    ref = 1.0 - np.exp(-widest_ms / heating_ms)
+    state: dict[tuple[int, int], tuple[float, float]] = {}     # pin -> (x, time of x)
+    for i in sorted(range(len(report.pulses)), key=lambda j: report.pulses[j].onset_ms):
+        p = report.pulses[i]
+        t = p.train
+        if t is None:
+            continue
+        x, at = state.get((p.row, p.col), (0.0, p.onset_ms))
+        x *= np.exp(-max(p.onset_ms - at, 0.0) / cooling_ms)
+        period = 1000.0 / t.frequency_hz
+        n = max(1, int(round(p.duration_ms / period)))
+        gain = 1.0 - np.exp(-t.pulse_width_ms * (t.amplitude_v / volts) ** 2 / heating_ms)
+        relax = np.exp(-max(period - t.pulse_width_ms, 0.0) / cooling_ms)
+        total = 0.0
+        for _ in range(n):
+            stroke = (1.0 - x) * gain
+            total += stroke
+            x = (x + stroke) * relax
+        out[i] = total / n / ref
+        state[(p.row, p.col)] = (x, p.onset_ms + n * period)
+    return out
 
 
 def quantize(a: np.ndarray, levels: int) -> np.ndarray:
@@ -86,6 +136,7 @@ class Skin:
     intensity_levels: int
     localisation_sd_mm: float = 0.0     # sigma_s of (P5); 0: positions as played
     speed_sd_mm_s: float = 0.0          # sigma_v of (P5); 0: no low-speed prior
+    pin_thermal: tuple[float, float] | None = None   # (heating_ms, cooling_ms) of (P6)
 
     @property
     def sigma_mm(self) -> float:
@@ -115,7 +166,7 @@ def activity(reports: list[PlayReport], profile: DeviceProfile, skin: Skin,
     index = {_site_key(rc): i for i, rc in enumerate(support)}
     x = np.zeros((len(reports), len(support), n_bins))
     for k, r in enumerate(reports):
-        a = quantize(pulse_intensities(r, profile), skin.intensity_levels)
+        a = quantize(pulse_intensities(r, profile, skin.pin_thermal), skin.intensity_levels)
         for p, amp, rc in zip(r.pulses, a.tolist(), felt[k], strict=True):
             if amp <= 0:
                 continue
@@ -178,7 +229,7 @@ def felt_positions(report: PlayReport, profile: DeviceProfile, skin: Skin) -> np
     times, group = np.unique(onsets, return_inverse=True)
     if len(times) < 2:
         return rc
-    w = np.clip(pulse_intensities(report, profile), 1e-9, None)
+    w = np.clip(pulse_intensities(report, profile, skin.pin_thermal), 1e-9, None)
     pitch = profile.geometry.pitch_mm
     centre = np.zeros((len(times), 2))
     np.add.at(centre, group, rc * w[:, None])
