@@ -1,8 +1,11 @@
 """The model participant: from the percept of what was played to an answer.
 
 For a choice question the participant compares the percept of the played
-stimulus with the percept of each answer option, rendered through the same
-encoding, coding and (simulated) device with the trial's condition. With white
+stimulus with the percept of each answer option as they were told the display
+shows it (:func:`told_pattern`: a named surface is its true heights in contour
+lines), or, where the display traces a clean drawing, that drawing through the
+same encoding; then through the coding and (simulated) device with the trial's
+condition. With white
 sensory noise (``vtexp.observer.percept`` P3) the log-likelihood of option k is
 
     E_k = -|D_k|^2 / 2 - xi_k + sigma_d eta_k,   D_k = s (f_played - f_k)     (M1)
@@ -35,12 +38,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
-from ..compile import code, encode, stimulus_image
+from ..compile import code, encode, encoding_params, stimulus_image
 from ..devices.sim import SimDevice
 from ..errors import InputError
 from ..experiment import LoadedExperiment
-from ..model import Condition, DeviceProfile, PlayReport
+from ..encoding.height_contours import height_contours_of_heights
+from ..model import Condition, DeviceProfile, Pattern, PlayReport
 from ..stimuli import render
+from ..stimuli.surfaces import surface_height
 from .params import (
     ObserverParams,
     Participant,
@@ -184,7 +189,11 @@ class ObserverModel:
             else:
                 image = render(ts.generator, ts.params, self.profile.rows, self.profile.cols)
             self._images[(name, level)] = image
-        pattern = encode(self.lx, image, self.profile, condition.encoding_params)
+        pattern = None
+        if self.params.answer_templates == "told":
+            pattern = told_pattern(self.lx, ts, self.profile, condition)
+        if pattern is None:
+            pattern = encode(self.lx, image, self.profile, condition.encoding_params)
         if not pattern.points:
             raise self._error(f"template {name!r} gives an empty pattern on {self.profile.name}",
                               ("observer", "templates", name))
@@ -311,3 +320,34 @@ def _scrambled(report: PlayReport, name: str) -> PlayReport:
               for p in report.pulses]
     return report.model_copy(update={"pulses": pulses})
 
+
+def told_pattern(lx: LoadedExperiment, ts: TemplateSpec, profile: DeviceProfile,
+                 condition: Condition) -> Pattern | None:
+    """What the participant was told answer ``ts`` is, as the display draws it; None
+    where the pipeline's rendering of the answer's image already is that.
+
+    The instructions say what the display means (seed 000 §3: "greater vibration
+    intensity represents a greater height"), not how the image processing arrives at
+    it, so a participant expects a named shape to feel like its truth drawn by the
+    display's code. For ``height-contours`` and a ``surface`` answer that truth is the
+    surface's height map (:func:`~vtexp.stimuli.surfaces.surface_height`) through
+    steps 3-7 of the pipeline, not shape from shading of its rendered image: a bowl is
+    low in the middle however it shades. Outline pipelines (``edge-trace``,
+    ``snake-corners``, ``spiral-path``) trace the clean drawing of the named shape, so
+    their rendering is already the told shape and None is returned.
+    """
+    exp = lx.experiment
+    if exp.encoding.pipeline != "height-contours":
+        return None
+    if ts.stimulus is not None:
+        spec = exp.stimuli.get(ts.stimulus)
+        if spec is None or spec.generator != "surface":
+            return None
+        params = {**spec.params, **condition.stimulus_params}
+    elif ts.generator == "surface":
+        params = dict(ts.params)
+    else:
+        return None
+    height, mask = surface_height(**params)
+    return height_contours_of_heights(height, mask, profile.rows, profile.cols,
+                                      **encoding_params(lx, condition.encoding_params))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, ValidationError
@@ -59,6 +59,7 @@ class ObserverParams(Model):
     rating_step: Positive = 1.0
     turns_sd: Annotated[float, Field(ge=0)] = 0.5
     lapse: Annotated[float, Field(ge=0, le=1)] = 0.02
+    answer_templates: Literal["told", "rendered"] = "told"
     population: PopulationSpread = Field(default_factory=PopulationSpread)
 
     def integration_of(self, site: str) -> float:
