@@ -33,6 +33,7 @@ session and the fast simulator give the same answers.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,7 +54,7 @@ from .params import (
     load_params,
     uniform_stream,
 )
-from .percept import Skin, features, noise_density, winding_turns
+from .percept import Skin, features, felt_positions, noise_density, winding_turns
 from .spec import ObserverSpec, TemplateSpec
 
 #: Uniforms per question and trial: lapse, lapse pick, turn noise, then two per option.
@@ -240,7 +241,14 @@ class ObserverModel:
                 a = self.spec.ratings[question.name]
                 names = [a.low, a.high]
             reports = [played] + [self.template_report(n, condition) for n in names]
-            f = features(reports, self.profile, skin)
+            # What was played is felt where the low-speed prior puts it (P5); an answer
+            # is expected where the told shape's points are, unless the observer file
+            # says answers are felt with the same displacements.
+            answers_skin = skin if self.params.answers_felt_as_played else \
+                dataclasses.replace(skin, speed_sd_mm_s=0.0)
+            felt = [felt_positions(played, self.profile, skin)] + \
+                [felt_positions(r, self.profile, answers_skin) for r in reports[1:]]
+            f = features(reports, self.profile, skin, felt=felt)
             D = f[:1] - f[1:]
             gram = (D @ D.T).astype(np.float64)
             w, V = np.linalg.eigh(gram)

@@ -52,6 +52,7 @@ class ObserverParams(Model):
     integration_ms: Positive | dict[str, Positive] = 40.0
     localisation_sd_mm: dict[str, Annotated[float, Field(ge=0)]] = Field(default_factory=dict)
     speed_prior_mm_s: Annotated[float, Field(ge=0)] = 0.0
+    answers_felt_as_played: bool = False
     pin_thermal: PinThermal | None = None
     efficiency: Annotated[float, Field(gt=0, le=1)] = 0.1
     decision_noise: Annotated[float, Field(ge=0)] = 1.0

@@ -148,17 +148,20 @@ class Skin:
 
 
 def activity(reports: list[PlayReport], profile: DeviceProfile, skin: Skin,
-             support: np.ndarray | None = None) -> np.ndarray:
+             support: np.ndarray | None = None, *,
+             felt: list[np.ndarray] | None = None) -> np.ndarray:
     """``u_a(t)`` (P2) of each report on a common time grid: shape (reports, sites, bins).
 
     The sites are where pulses are felt (:func:`felt_positions`: the actuators, or
     places between them under the low-speed prior, P5), as rows of ``support``
     (``(row, col)`` in actuator units; default: every site any report uses, in
     :func:`support_of`'s order). A flat 1-D array of actuator indices (row * cols + col)
-    is taken as those actuators' positions.
+    is taken as those actuators' positions. ``felt``: each report's felt positions,
+    when the caller has them (default: :func:`felt_positions`).
     """
     dt, tau = skin.dt_ms, skin.integration_ms
-    felt = [felt_positions(r, profile, skin) for r in reports]
+    if felt is None:
+        felt = [felt_positions(r, profile, skin) for r in reports]
     support = support_of(felt) if support is None else as_positions(support, profile)
     end = max((max((p.onset_ms + p.duration_ms for p in r.pulses), default=0.0)
                for r in reports), default=0.0)
@@ -283,12 +286,16 @@ def _overlap_factor(profile: DeviceProfile, skin: Skin, support: np.ndarray) -> 
 
 
 def features(reports: list[PlayReport], profile: DeviceProfile, skin: Skin,
-             support: np.ndarray | None = None) -> np.ndarray:
+             support: np.ndarray | None = None, *,
+             felt: list[np.ndarray] | None = None) -> np.ndarray:
     """One vector per report (float32); ``|f_i - f_j|^2`` is the integral of (P3) over
-    TPT^2 tau. ``support``: as :func:`activity`'s (default: every felt site)."""
+    TPT^2 tau. ``support`` and ``felt``: as :func:`activity`'s (default: every felt
+    site)."""
+    if felt is None:
+        felt = [felt_positions(r, profile, skin) for r in reports]
     if support is None:
-        support = support_of([felt_positions(r, profile, skin) for r in reports])
-    u = activity(reports, profile, skin, support)          # (k, a, t)
+        support = support_of(felt)
+    u = activity(reports, profile, skin, support, felt=felt)          # (k, a, t)
     R = overlap_factor(profile, skin, support)              # (a, a)
     u *= np.sqrt(skin.dt_ms / skin.integration_ms)
     w = np.matmul(R.astype(np.float32), u.astype(np.float32))
