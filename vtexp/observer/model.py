@@ -5,8 +5,9 @@ stimulus with the percept of each answer option as they were told the display
 shows it (:func:`told_pattern`: a named surface is its true heights in contour
 lines), or, where the display traces a clean drawing, that drawing through the
 same encoding; then through the coding and (simulated) device with the trial's
-condition. With white
-sensory noise (``vtexp.observer.percept`` P3) the log-likelihood of option k is
+condition. What was played is felt where the low-speed prior puts it (P5); the
+answers where their points are. With white sensory noise
+(``vtexp.observer.percept`` P3) the log-likelihood of option k is
 
     E_k = -|D_k|^2 / 2 - xi_k + sigma_d eta_k,   D_k = s (f_played - f_k)     (M1)
 
@@ -41,9 +42,9 @@ from scipy.special import ndtri
 
 from ..compile import code, encode, encoding_params, stimulus_image
 from ..devices.sim import SimDevice
+from ..encoding.height_contours import height_contours_of_heights
 from ..errors import InputError
 from ..experiment import LoadedExperiment
-from ..encoding.height_contours import height_contours_of_heights
 from ..model import Condition, DeviceProfile, Pattern, PlayReport
 from ..stimuli import render
 from ..stimuli.surfaces import surface_height
