@@ -524,8 +524,8 @@ def height_contours_of_heights(height: np.ndarray, mask: np.ndarray, rows: int, 
     """A height map (the image's size) -> contour lines on the array: steps 3-7 of
     :func:`height_contours` on heights that are known rather than inferred from shading.
 
-    What a participant told "a stronger vibration means a greater height" (seed 000
-    §3) expects a named surface to feel like: its true heights (e.g.
+    What a participant told that "the greater vibration intensity represents a greater
+    height value" (seed 000 §3.4) expects a named surface to feel like: its true heights (e.g.
     :func:`vtexp.stimuli.surfaces.surface_height`) drawn by the same contour rules and
     array mapping as a camera image would be. The working resolution is reduced as
     :func:`height_contours` reduces the image (area averages of ``cells_per_motor``

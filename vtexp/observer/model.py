@@ -335,8 +335,8 @@ def told_pattern(lx: LoadedExperiment, ts: TemplateSpec, profile: DeviceProfile,
     """What the participant was told answer ``ts`` is, as the display draws it; None
     where the pipeline's rendering of the answer's image already is that.
 
-    The instructions say what the display means (seed 000 §3: "greater vibration
-    intensity represents a greater height"), not how the image processing arrives at
+    The instructions say what the display means (seed 000 §3.4: "the greater
+    vibration intensity represents a greater height value"), not how the image processing arrives at
     it, so a participant expects a named shape to feel like its truth drawn by the
     display's code. For ``height-contours`` and a ``surface`` answer that truth is the
     surface's height map (:func:`~vtexp.stimuli.surfaces.surface_height`) through
