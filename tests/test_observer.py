@@ -45,9 +45,13 @@ def test_the_noise_is_calibrated_by_the_two_point_threshold():
 def test_a_clear_percept_beats_a_blurred_one():
     """The same shapes on the back, felt by a skin as sharp as a palm's (10 mm) and by one
     that blurs over four tactors (160 mm): the shapes are farther apart in d' and
-    recognised more often with the clear percept."""
-    sharp = Setup.load(GRID, overrides={"two_point_threshold_mm": {"lower_back": 10.0}})
-    blurred = Setup.load(GRID, overrides={"two_point_threshold_mm": {"lower_back": 160.0}})
+    recognised more often with the clear percept. The low-speed prior is off: it moves
+    what was played away from the told shapes by the same amount for both skins, which
+    costs the sharp one more (its own test is below)."""
+    sharp = Setup.load(GRID, overrides={"two_point_threshold_mm": {"lower_back": 10.0},
+                                        "speed_prior_mm_s": 0.0})
+    blurred = Setup.load(GRID, overrides={"two_point_threshold_mm": {"lower_back": 160.0},
+                                          "speed_prior_mm_s": 0.0})
     q = sharp.lx.experiment.asked()[0]
 
     def mean_d(setup):
@@ -234,3 +238,68 @@ def test_the_integration_filter_is_the_recursion_of_p2_exactly():
         acc = a * acc + (1.0 - a) * x[..., n]
         expected[..., n] = acc
     assert np.array_equal(leaky(x, dt, tau), expected)
+
+
+def test_a_named_surface_is_its_true_heights_so_a_ball_and_a_bowl_differ():
+    """Rendered through shape from shading a bowl is the ball (they shade alike under
+    the paper's light); as the participant was told (intensity = height) the bowl is
+    high at the rim and low in the middle, in every mode."""
+    path = ROOT / "experiments" / "six_mode_ball.yaml"
+    told = Setup.load(path)
+    rendered = Setup.load(path, overrides={"answer_templates": "rendered"})
+    for setup, apart in ((told, True), (rendered, False)):
+        m = setup.model
+        for c in setup.conditions:
+            ball, bowl = m.template_report("ball", c), m.template_report("concave surface", c)
+            same = sorted((p.row, p.col, p.onset_ms, p.level) for p in ball.pulses) == \
+                sorted((p.row, p.col, p.onset_ms, p.level) for p in bowl.pulses)
+            assert same is not apart, (c.label, apart)
+
+
+def test_quick_successive_taps_are_felt_closer_as_goldreich_predicts():
+    """Two taps l apart and dt apart are felt l / (1 + 2 (sigma_s / (sigma_v dt))^2)
+    apart (Goldreich 2007); without a speed prior, where they were played."""
+    from vtexp.model import DeviceProfile, PlayedPulse, PlayReport
+    from vtexp.observer.percept import felt_positions
+    prof = DeviceProfile.load("vest_6x8")           # pitch 40 mm
+    for dt in (50.0, 100.0, 400.0):
+        rep = PlayReport(device="vest_6x8", started_at_ms=0, duration_ms=dt + 50, pulses=[
+            PlayedPulse(row=0, col=c, scheduled_onset_ms=t, onset_ms=t, duration_ms=50,
+                        level=2) for c, t in ((0, 0.0), (2, dt))])
+        skin = Skin(39.0, 40.0, 8, localisation_sd_mm=10.0, speed_sd_mm_s=100.0)
+        f = felt_positions(rep, prof, skin)
+        ratio = (10.0 / (100.0 * dt / 1000.0)) ** 2
+        assert (f[1, 1] - f[0, 1]) * 40.0 == pytest.approx(80.0 / (1 + 2 * ratio))
+        assert f[0, 1] + f[1, 1] == pytest.approx(2.0)                # about the middle
+        assert np.array_equal(felt_positions(rep, prof, Skin(39.0, 40.0, 8)),
+                              [[0, 0], [0, 2]])
+
+
+def test_a_pin_that_cannot_cool_moves_less_per_pulse():
+    """(P6): faster trains move an SMA pin less per pulse; a single widest pulse from
+    cool is 1; a pin driven again before it has cooled moves less than a cool one."""
+    from vtexp.model import PlayedPulse, PlayReport, PulseTrain
+    from vtexp.observer.percept import pin_strokes
+
+    def train(f, w=1.0, at=0.0, col=0, dur=200.0):
+        return PlayedPulse(row=0, col=col, scheduled_onset_ms=at, onset_ms=at, duration_ms=dur,
+                           train=PulseTrain(amplitude_v=2.0, frequency_hz=f, pulse_width_ms=w))
+
+    rep = PlayReport(device="sma_5x5", started_at_ms=0, duration_ms=200,
+                     pulses=[train(25, col=0), train(40, col=1), train(50, col=2),
+                             train(25, w=1.5, col=3, dur=40)])
+    s = pin_strokes(rep, 2.0, 1.5, 5.0, 400.0)
+    assert s[0] > s[1] > s[2] and s[3] == pytest.approx(1.0)
+    again = PlayReport(device="sma_5x5", started_at_ms=0, duration_ms=400,
+                       pulses=[train(40), train(40, at=200.0)])
+    a = pin_strokes(again, 2.0, 1.5, 5.0, 400.0)
+    assert a[1] < a[0] == pytest.approx(s[1])
+
+
+def test_integration_time_per_site_or_one_for_all():
+    p = load_params()
+    assert p.integration_of("lower_back") > 0 and p.integration_of("palm") > 0
+    assert load_params(None, {"integration_ms": 90.0}).integration_of("lower_back") == 90.0
+    q = load_params(None, {"integration_ms": {"lower_back": 120.0}})
+    assert q.integration_of("lower_back") == 120.0
+    assert q.integration_of("palm") == p.integration_of("palm")

@@ -510,6 +510,55 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
     wh = (g.shape[1] // f, g.shape[0] // f)
     e, mask = reflectance(g, size=wh, albedo=albedo, ambient=ambient, mask=mask)
     z = shape_from_shading(e, mask, min_brightness=min_brightness)
+    return _contour_pattern(z, mask, rows, cols, f=f, wh=wh, lattice=(lr, lc), lines=lines,
+                            levels=levels, proportion=proportion, align=align,
+                            given={"lines": lines, "levels": levels, "proportion": proportion,
+                                   "cells_per_motor": cells_per_motor, "align": align,
+                                   "albedo": albedo, "ambient": ambient})
+
+
+def height_contours_of_heights(height: np.ndarray, mask: np.ndarray, rows: int, cols: int, *,
+                               lines="variance", levels: str = "interior",
+                               proportion: float = PROPORTION, cells_per_motor: int = 4,
+                               align: str = "center", **_image_only) -> Pattern:
+    """A height map (the image's size) -> contour lines on the array: steps 3-7 of
+    :func:`height_contours` on heights that are known rather than inferred from shading.
+
+    What a participant told that "the greater vibration intensity represents a greater
+    height value" (seed 000 §3.4) expects a named surface to feel like: its true heights (e.g.
+    :func:`vtexp.stimuli.surfaces.surface_height`) drawn by the same contour rules and
+    array mapping as a camera image would be. The working resolution is reduced as
+    :func:`height_contours` reduces the image (area averages of ``cells_per_motor``
+    pixels per actuator). Parameters that only concern shading (``albedo``,
+    ``ambient``, ``min_brightness``) are accepted and ignored.
+    """
+    cv = cv2()
+    z = np.asarray(height, np.float32)
+    if z.ndim != 2 or z.size == 0 or z.shape != np.shape(mask):
+        raise ValueError("expected a 2-D height map and a mask of its size")
+    m, n = z.shape
+    lr, lc = lattice_shape(m, n, rows, cols)
+    f = max(1, min(n // max(lc * cells_per_motor, 1), m // max(lr * cells_per_motor, 1)))
+    zz = z[:m - m % f, :n - n % f]
+    mm = np.asarray(mask, np.float32)[:m - m % f, :n - n % f]
+    wh = (zz.shape[1] // f, zz.shape[0] // f)
+    if f > 1:
+        zz = cv.resize(zz, wh, interpolation=cv.INTER_AREA)
+        mm = cv.resize(mm, wh, interpolation=cv.INTER_AREA)
+    work_mask = mm > 0.5
+    zz = np.where(work_mask, zz, 0.0)
+    return _contour_pattern(zz, work_mask, rows, cols, f=f, wh=wh, lattice=(lr, lc),
+                            lines=lines, levels=levels, proportion=proportion, align=align,
+                            given={"lines": lines, "levels": levels, "proportion": proportion,
+                                   "cells_per_motor": cells_per_motor, "align": align,
+                                   "heights": "given"})
+
+
+def _contour_pattern(z: np.ndarray, mask: np.ndarray, rows: int, cols: int, *, f: int,
+                     wh: tuple[int, int], lattice: tuple[int, int], lines, levels: str,
+                     proportion: float, align: str, given: dict) -> Pattern:
+    """Steps 3-7 on a height map at the working resolution ``wh`` (reduced ``f`` times)."""
+    lr, lc = lattice
     h = normalise_height(z, mask)
     if lines == "variance":
         n_lines, var = count_lines(h, mask)
@@ -528,8 +577,6 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
                 "col": [round(cs, 9), round(c0 + 0.5 * cs - 0.5, 9)]}
     return Pattern.model_validate({
         "rows": rows, "cols": cols, "points": points, "pipeline": "height-contours",
-        "params": {"lines": lines, "levels": levels, "proportion": proportion,
-                   "cells_per_motor": cells_per_motor, "align": align, "albedo": albedo,
-                   "ambient": ambient, "n_lines": n_lines, "variance": round(var, 6),
+        "params": {**given, "n_lines": n_lines, "variance": round(var, 6),
                    "line_heights": [round(t, 6) for t in tps], "lattice": [lr, lc],
                    "to_array": to_array}})

@@ -1,9 +1,13 @@
 """The model participant: from the percept of what was played to an answer.
 
 For a choice question the participant compares the percept of the played
-stimulus with the percept of each answer option, rendered through the same
-encoding, coding and (simulated) device with the trial's condition. With white
-sensory noise (``vtexp.observer.percept`` P3) the log-likelihood of option k is
+stimulus with the percept of each answer option as they were told the display
+shows it (:func:`told_pattern`: a named surface is its true heights in contour
+lines), or, where the display traces a clean drawing, that drawing through the
+same encoding; then through the coding and (simulated) device with the trial's
+condition. What was played is felt where the low-speed prior puts it (P5); the
+answers where their points are. With white sensory noise
+(``vtexp.observer.percept`` P3) the log-likelihood of option k is
 
     E_k = -|D_k|^2 / 2 - xi_k + sigma_d eta_k,   D_k = s (f_played - f_k)     (M1)
 
@@ -30,17 +34,20 @@ session and the fast simulator give the same answers.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.special import ndtri
 
-from ..compile import code, encode, stimulus_image
+from ..compile import code, encode, encoding_params, stimulus_image
 from ..devices.sim import SimDevice
+from ..encoding.height_contours import height_contours_of_heights
 from ..errors import InputError
 from ..experiment import LoadedExperiment
-from ..model import Condition, DeviceProfile, PlayReport
+from ..model import Condition, DeviceProfile, Pattern, PlayReport
 from ..stimuli import render
+from ..stimuli.surfaces import surface_height
 from .params import (
     ObserverParams,
     Participant,
@@ -48,7 +55,7 @@ from .params import (
     load_params,
     uniform_stream,
 )
-from .percept import Skin, features, noise_density, winding_turns
+from .percept import Skin, features, felt_positions, noise_density, winding_turns
 from .spec import ObserverSpec, TemplateSpec
 
 #: Uniforms per question and trial: lapse, lapse pick, turn noise, then two per option.
@@ -184,7 +191,11 @@ class ObserverModel:
             else:
                 image = render(ts.generator, ts.params, self.profile.rows, self.profile.cols)
             self._images[(name, level)] = image
-        pattern = encode(self.lx, image, self.profile, condition.encoding_params)
+        pattern = None
+        if self.params.answer_templates == "told":
+            pattern = told_pattern(self.lx, ts, self.profile, condition)
+        if pattern is None:
+            pattern = encode(self.lx, image, self.profile, condition.encoding_params)
         if not pattern.points:
             raise self._error(f"template {name!r} gives an empty pattern on {self.profile.name}",
                               ("observer", "templates", name))
@@ -197,10 +208,17 @@ class ObserverModel:
         return report
 
     # ------------------------------------------------------------------ geometry
-    def _support(self, reports: list[PlayReport]) -> np.ndarray:
-        cols = self.profile.geometry.cols
-        return np.array(sorted({p.row * cols + p.col for r in reports for p in r.pulses}),
-                        dtype=int)
+    def skin(self, who: Participant) -> Skin:
+        """What shapes participant ``who``'s percept: their own blur, integration time and
+        levels; the localisation SD in the same ratio to their blur as the site's
+        (P5); the device's pin physics (P6)."""
+        p = self.params
+        thermal = (None if p.pin_thermal is None
+                   else (p.pin_thermal.heating_ms, p.pin_thermal.cooling_ms))
+        sigma_s = p.localisation_ratio(self.site) * who.two_point_threshold_mm
+        return Skin(who.two_point_threshold_mm, who.integration_ms, who.intensity_levels,
+                    localisation_sd_mm=sigma_s,
+                    speed_sd_mm_s=p.speed_prior_mm_s, pin_thermal=thermal)
 
     def geometry(self, question, condition: Condition, played: PlayReport,
                  who: Participant, played_key: tuple | None = None) -> _Geometry:
@@ -213,7 +231,7 @@ class ObserverModel:
         g = self._geometry.get(key)
         if g is not None:
             return g
-        skin = Skin(who.two_point_threshold_mm, who.integration_ms, who.intensity_levels)
+        skin = self.skin(who)
         if question.kind == "number":
             g = _Geometry(np.zeros((0, 0)), np.zeros((0, 0)),
                           turns=winding_turns(played, self.profile, skin))
@@ -224,7 +242,14 @@ class ObserverModel:
                 a = self.spec.ratings[question.name]
                 names = [a.low, a.high]
             reports = [played] + [self.template_report(n, condition) for n in names]
-            f = features(reports, self.profile, skin, self._support(reports))
+            # What was played is felt where the low-speed prior puts it (P5); an answer
+            # is expected where the told shape's points are, unless the observer file
+            # says answers are felt with the same displacements.
+            answers_skin = skin if self.params.answers_felt_as_played else \
+                dataclasses.replace(skin, speed_sd_mm_s=0.0)
+            felt = [felt_positions(played, self.profile, skin)] + \
+                [felt_positions(r, self.profile, answers_skin) for r in reports[1:]]
+            f = features(reports, self.profile, skin, felt=felt)
             D = f[:1] - f[1:]
             gram = (D @ D.T).astype(np.float64)
             w, V = np.linalg.eigh(gram)
@@ -303,3 +328,35 @@ def _scrambled(report: PlayReport, name: str) -> PlayReport:
     pulses = [p.model_copy(update={"row": to[(p.row, p.col)][0], "col": to[(p.row, p.col)][1]})
               for p in report.pulses]
     return report.model_copy(update={"pulses": pulses})
+
+
+def told_pattern(lx: LoadedExperiment, ts: TemplateSpec, profile: DeviceProfile,
+                 condition: Condition) -> Pattern | None:
+    """What the participant was told answer ``ts`` is, as the display draws it; None
+    where the pipeline's rendering of the answer's image already is that.
+
+    The instructions say what the display means (seed 000 §3.4: "the greater
+    vibration intensity represents a greater height value"), not how the image processing arrives at
+    it, so a participant expects a named shape to feel like its truth drawn by the
+    display's code. For ``height-contours`` and a ``surface`` answer that truth is the
+    surface's height map (:func:`~vtexp.stimuli.surfaces.surface_height`) through
+    steps 3-7 of the pipeline, not shape from shading of its rendered image: a bowl is
+    low in the middle however it shades. Outline pipelines (``edge-trace``,
+    ``snake-corners``, ``spiral-path``) trace the clean drawing of the named shape, so
+    their rendering is already the told shape and None is returned.
+    """
+    exp = lx.experiment
+    if exp.encoding.pipeline != "height-contours":
+        return None
+    if ts.stimulus is not None:
+        spec = exp.stimuli.get(ts.stimulus)
+        if spec is None or spec.generator != "surface":
+            return None
+        params = {**spec.params, **condition.stimulus_params}
+    elif ts.generator == "surface":
+        params = dict(ts.params)
+    else:
+        return None
+    height, mask = surface_height(**params)
+    return height_contours_of_heights(height, mask, profile.rows, profile.cols,
+                                      **encoding_params(lx, condition.encoding_params))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, ValidationError
@@ -34,6 +34,13 @@ class PopulationSpread(Model):
     rating_bias_sd: Annotated[float, Field(ge=0, le=5)] = 0.3
 
 
+class PinThermal(Model):
+    """First-order heating and cooling of an SMA pin's wire (``percept.pin_strokes``)."""
+
+    heating_ms: Positive
+    cooling_ms: Positive
+
+
 class ObserverParams(Model):
     """One model participant (or the population's typical one)."""
 
@@ -42,14 +49,35 @@ class ObserverParams(Model):
                                  "lower_back": 39.0})
     site_aliases: dict[str, list[str]] = Field(default_factory=dict)
     intensity_levels: Annotated[float, Field(ge=2, le=100)] = 7.5
-    integration_ms: Positive = 40.0
+    integration_ms: Positive | dict[str, Positive] = 40.0
+    localisation_sd_mm: dict[str, Annotated[float, Field(ge=0)]] = Field(default_factory=dict)
+    speed_prior_mm_s: Annotated[float, Field(ge=0)] = 0.0
+    answers_felt_as_played: bool = False
+    pin_thermal: PinThermal | None = None
     efficiency: Annotated[float, Field(gt=0, le=1)] = 0.1
     decision_noise: Annotated[float, Field(ge=0)] = 1.0
     abstain_criterion: Annotated[float, Field(ge=0)] = 1.0
     rating_step: Positive = 1.0
     turns_sd: Annotated[float, Field(ge=0)] = 0.5
     lapse: Annotated[float, Field(ge=0, le=1)] = 0.02
+    answer_templates: Literal["told", "rendered"] = "told"
     population: PopulationSpread = Field(default_factory=PopulationSpread)
+
+    def integration_of(self, site: str) -> float:
+        """The integration time constant at ``site`` (one value for every site, or the
+        site's own)."""
+        if isinstance(self.integration_ms, dict):
+            if site not in self.integration_ms:
+                raise InputError(f"integration_ms gives no value for the body site {site!r} "
+                                 f"(it has {', '.join(self.integration_ms)})",
+                                 key="integration_ms")
+            return self.integration_ms[site]
+        return self.integration_ms
+
+    def localisation_ratio(self, site: str) -> float:
+        """The site's localisation SD over its two-point threshold (0: none given), so a
+        participant's SD follows their own threshold."""
+        return self.localisation_sd_mm.get(site, 0.0) / self.two_point_threshold_mm[site]
 
     def site_of(self, body_site: str) -> str:
         """The two-point-threshold site a device profile's ``body_site`` text names."""
@@ -151,7 +179,7 @@ def draw_participant(params: ObserverParams, site: str, seed: int, participant: 
         return float(mean * np.exp(s * zz))
 
     tpt = lognormal(params.two_point_threshold_mm[site], pop.two_point_threshold_cv, zt)
-    tau = lognormal(params.integration_ms, pop.integration_cv, zi)
+    tau = lognormal(params.integration_of(site), pop.integration_cv, zi)
     levels = max(2, round(params.intensity_levels + pop.intensity_levels_sd * float(z[2])))
     eff = min(1.0, lognormal(params.efficiency, pop.efficiency_cv, z[3]))
     dn = lognormal(params.decision_noise, pop.decision_noise_cv, z[4]) \

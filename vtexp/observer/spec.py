@@ -13,9 +13,10 @@ from ..model import Model
 class TemplateSpec(Model):
     """What an answer option feels like: a stimulus of the experiment, or a new image.
 
-    The template is rendered through the experiment's encoding and coding with
-    the parameters of the trial's condition, and played on the simulated device,
-    exactly as the stimulus was. ``scramble: true`` keeps the pulses but plays
+    The template is encoded as the participant was told the display shows it
+    (``answer_templates: told``, ``model.told_pattern``: a surface by its true
+    heights) or else through the experiment's encoding, coded with the parameters of
+    the trial's condition, and played on the simulated device, as the stimulus was. ``scramble: true`` keeps the pulses but plays
     them at shuffled positions: vibration without a coherent movement.
     """
 
