@@ -1,0 +1,562 @@
+"""Fitting the model participant to logged sessions: estimates, intervals, population.
+
+``vtexp observer fit DATA`` reads sessions (:func:`read_trials`), and for each
+participant maximises the likelihood of their answers
+(:class:`~vtexp.observer.likelihood.Likelihood`) over the parameters asked for,
+the others held at the observer file's values (:func:`fit_participant`). Each
+parameter gets a profile-likelihood 95 % interval: the values whose profile
+log-likelihood is within 3.84 / 2 of the maximum (likelihood ratio, chi-square
+with one degree of freedom). A parameter whose interval reaches both of its bounds
+is **not identified** by these data: the answers say nothing about it, and no
+estimate is reported. The participants' estimates make the population
+(:func:`population`): the centre and the spread that
+:func:`~vtexp.observer.params.draw_participant` draws from, written as an
+observer file (:func:`observer_yaml`) that ``vtexp simulate --observer`` takes.
+
+The percept of a trial is that of what the device reported playing (its device
+events, the first play), never the plan's schedule.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import brentq, minimize
+
+from ..errors import InputError
+from ..model import PlayedPulse, PlayReport, PulseTrain
+from .likelihood import DECISION, Likelihood, Trial, decision_values
+from .model import ObserverModel
+
+#: chi-square(1) 95 % quantile / 2: the drop in log-likelihood at an interval's edge.
+HALF_CHI2 = 3.841458820694124 / 2
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """A parameter a fit can estimate: its bounds and the scale it is searched on."""
+
+    name: str
+    low: float
+    high: float
+    log: bool                # searched on a log scale
+    informs: str             # which questions inform it: any, graded, abstain, rating, count
+    spread: str | None       # its population field (None: one value for everyone)
+
+    def to_u(self, x: float) -> float:
+        return math.log(x) if self.log else x
+
+    def from_u(self, u: float) -> float:
+        return math.exp(u) if self.log else u
+
+    @property
+    def bounds_u(self) -> tuple[float, float]:
+        return self.to_u(self.low), self.to_u(self.high)
+
+
+PARAMS: dict[str, ParamSpec] = {p.name: p for p in (
+    ParamSpec("efficiency", 1e-3, 1.0, True, "graded", "efficiency_cv"),
+    ParamSpec("decision_noise", 0.05, 10.0, True, "graded", "decision_noise_cv"),
+    ParamSpec("lapse", 0.0, 0.5, False, "any", "lapse_logit_sd"),
+    ParamSpec("abstain_criterion", 0.0, 10.0, False, "abstain", None),
+    ParamSpec("rating_bias", -5.0, 5.0, False, "rating", "rating_bias_sd"),
+    ParamSpec("rating_step", 0.05, 10.0, True, "rating", None),
+    ParamSpec("turns_sd", 0.05, 5.0, True, "count", None),
+)}
+assert set(PARAMS) == set(DECISION)
+
+#: Parameters of the percept itself: a fit holds them at the observer file's values.
+PERCEPT = ("two_point_threshold_mm", "integration_ms", "intensity_levels")
+DEFAULT_PARAMS = ("efficiency", "lapse")
+
+
+def check_names(names: list[str], model: ObserverModel) -> None:
+    """Each name a parameter this fit can estimate, and one the experiment's questions
+    inform; otherwise one message saying why."""
+    known = ", ".join(PARAMS)
+    qs = model.lx.experiment.asked()
+    kinds = {q.kind for q in qs}
+    abstain = any(q.kind == "choice" and any(o in model.spec.abstain for o in q.options)
+                  for q in qs)
+    if not names:
+        raise InputError("give at least one parameter to fit", key="--params")
+    for n in names:
+        if n in PERCEPT:
+            raise InputError(f"{n} shapes the percept itself, which this version computes once "
+                             "per fit: it is not fitted yet; set it in the observer file "
+                             f"(--observer) and fit {', '.join(DEFAULT_PARAMS)}",
+                             key="--params")
+        if n not in PARAMS:
+            raise InputError(f"no parameter {n!r}; the parameters a fit estimates are {known}",
+                             key="--params")
+        why = {"graded": (not kinds & {"choice", "rating"},
+                          "no choice or rating question of the experiment depends on it"),
+               "abstain": (not abstain, "no question of the experiment has an abstain option "
+                           f"(observer.abstain: {model.spec.abstain or 'none'})"),
+               "rating": ("rating" not in kinds, "the experiment asks no rating question"),
+               "count": ("number" not in kinds, "the experiment asks no number question"),
+               "any": (False, "")}[PARAMS[n].informs]
+        if why[0]:
+            raise InputError(f"{n}: {why[1]}, so its answers cannot inform it", key="--params")
+    if len(set(names)) != len(names):
+        raise InputError("a parameter is named twice", key="--params")
+
+
+# --------------------------------------------------------------------------- fitting
+
+@dataclass
+class ParameterFit:
+    """One parameter of one participant: the estimate and its 95 % profile interval.
+
+    ``identified`` is False when the profile stays within 3.84 / 2 of the maximum
+    from bound to bound: then ``estimate`` is None (the data do not say).
+    """
+
+    name: str
+    estimate: float | None
+    low: float
+    high: float
+    identified: bool
+
+    def text(self, digits: int = 3) -> str:
+        if not self.identified:
+            return "not identified"
+        def g(x):
+            return f"{x:.{digits}g}"
+        return f"{g(self.estimate)} [{g(self.low)}, {g(self.high)}]"
+
+
+@dataclass
+class ParticipantFit:
+    participant: str
+    answers: int
+    loglik: float
+    params: dict[str, ParameterFit]
+    seconds: float
+    evaluations: int
+    notes: list[str] = field(default_factory=list)
+
+
+def fit_participant(lik: Likelihood, names: list[str], fixed: dict[str, float], *,
+                    participant: str = "", starts: int = 3) -> ParticipantFit:
+    """Maximum likelihood over ``names`` (the others at ``fixed``), with profile intervals.
+
+    The search is L-BFGS-B within each parameter's bounds, on the log scale for
+    positive scale parameters, from ``starts`` starting points (the fixed values
+    and points spread over the bounds); the best is kept.
+    """
+    t0 = time.perf_counter()
+    specs = [PARAMS[n] for n in names]
+    bounds = [s.bounds_u for s in specs]
+    calls = [0]
+
+    def values(u) -> dict[str, float]:
+        v = dict(fixed)
+        for s, x in zip(specs, u, strict=True):
+            v[s.name] = s.from_u(float(x))
+        return v
+
+    def nll(u) -> float:
+        calls[0] += 1
+        return -lik(values(u))
+
+    def clip(u):
+        return np.array([min(max(x, lo), hi) for x, (lo, hi) in zip(u, bounds, strict=True)])
+
+    def lo_hi(i):
+        lo, hi = bounds[i]
+        return lo + 0.02 * (hi - lo), hi - 0.02 * (hi - lo)
+
+    first = clip([s.to_u(max(fixed[s.name], s.low if not s.log else s.low * 1.01))
+                  for s in specs])
+    points = [first]
+    for k in range(1, starts):
+        frac = (k / starts + 0.5 / starts * np.arange(len(specs))) % 1.0
+        points.append(np.array([lo_hi(i)[0] + f * (lo_hi(i)[1] - lo_hi(i)[0])
+                                for i, f in enumerate(frac)]))
+    best, modes = None, []
+    for p in points:
+        r = minimize(nll, p, method="L-BFGS-B", bounds=bounds,
+                     options={"eps": 1e-5, "maxiter": 200})
+        if best is None or r.fun < best.fun:
+            best = r
+        if all(np.abs(np.asarray(r.x) - m).max() > 0.05 * _widest(bounds) for m in modes):
+            modes.append(np.asarray(r.x))
+    u_hat, nll_hat = np.array(best.x), float(best.fun)
+    for p in points:        # where the profile's inner searches also start from
+        if all(np.abs(p - m).max() > 0.05 * _widest(bounds) for m in modes):
+            modes.append(p)
+
+    out: dict[str, ParameterFit] = {}
+    for i, s in enumerate(specs):
+        low, high, better = _profile(nll, u_hat, nll_hat, i, bounds, modes)
+        if better is not None and better[1] < nll_hat - 1e-6:      # the profile found higher
+            u_hat, nll_hat = better
+            low, high, _ = _profile(nll, u_hat, nll_hat, i, bounds, modes)
+        lo_b, hi_b = bounds[i]
+        span = hi_b - lo_b
+        flat = low <= lo_b + 1e-6 * span and high >= hi_b - 1e-6 * span
+        out[s.name] = ParameterFit(s.name, None if flat else s.from_u(u_hat[i]),
+                                   s.from_u(low), s.from_u(high), not flat)
+    return ParticipantFit(participant, lik.n, -nll_hat, out, time.perf_counter() - t0, calls[0])
+
+
+def _widest(bounds) -> float:
+    return max(hi - lo for lo, hi in bounds)
+
+
+def _profile(nll, u_hat, nll_hat, i, bounds, modes=()):
+    """The 95 % profile interval of parameter ``i`` (on the search scale): walk out from
+    the estimate each way, doubling the step, until the profile has dropped by
+    HALF_CHI2 or the bound is reached, then find the crossing by Brent's method.
+
+    At each point the other parameters are optimised from the previous point's and from
+    every other local maximum and starting point of the fit (``modes``): a likelihood
+    with two modes (a sharp participant who lapses often, or a blurred one who never
+    does) is then profiled across both."""
+    others = [j for j in range(len(u_hat)) if j != i]
+    warm = {"u": u_hat.copy()}
+    better: list = [None]
+
+    def prof(x: float) -> float:
+        if not others:
+            u = u_hat.copy()
+            u[i] = x
+            val = nll(u)
+        else:
+            def inner(w):
+                u = warm["u"].copy()
+                u[i] = x
+                u[others] = w
+                return nll(u)
+            starts = [warm["u"][others]]
+            starts += [m[others] for m in modes
+                       if np.abs(m[others] - starts[0]).max() > 0.05 * _widest(bounds)]
+            r = min((minimize(inner, w0, method="L-BFGS-B",
+                              bounds=[bounds[j] for j in others],
+                              options={"eps": 1e-5, "maxiter": 100}) for w0 in starts),
+                    key=lambda r: r.fun)
+            u = warm["u"].copy()
+            u[i] = x
+            u[others] = r.x
+            warm["u"] = u
+            val = float(r.fun)
+        if better[0] is None or val < better[0][1]:
+            full = warm["u"].copy() if others else u_hat.copy()
+            full[i] = x
+            better[0] = (full, val)
+        return val - nll_hat - HALF_CHI2
+
+    lo_b, hi_b = bounds[i]
+    span = hi_b - lo_b
+    edges = []
+    for direction, bound in ((-1, lo_b), (1, hi_b)):
+        warm["u"] = u_hat.copy()
+        x0, d0 = u_hat[i], -HALF_CHI2
+        step = span / 32
+        edge = bound
+        while True:
+            x1 = x0 + direction * step
+            if (x1 - bound) * direction >= 0:
+                x1 = bound
+            d1 = prof(x1)
+            if d1 > 0:
+                a, b = sorted((x0, x1))
+                fa, fb = (d0, d1) if a == x0 else (d1, d0)
+                edge = x0 if fa * fb > 0 else brentq(prof, a, b, xtol=span * 1e-3)
+                break
+            if x1 == bound:
+                break
+            x0, d0 = x1, d1
+            step *= 2
+        edges.append(edge)
+    return edges[0], edges[1], better[0]
+
+
+# --------------------------------------------------------------------------- reading sessions
+
+@dataclass
+class FitData:
+    """What a fit reads from sessions: the experiment they ran, the device profile, and
+    each participant's trials (answer and what was played)."""
+
+    model: ObserverModel
+    trials: dict[str, list[Trial]]
+    sessions: int
+    notes: list[str]
+    experiment_sha256: str
+
+
+def read_trials(paths: list, *, params_file=None, include_simulated: bool = False) -> FitData:
+    """Sessions under ``paths`` (as ``vtexp analyze`` takes them), with every trial's
+    played stimulus rebuilt from the session's device events."""
+    from ..analysis.load import events_path, load_sessions
+    from ..compile import enumerate_conditions
+    from ..experiment import load_experiment_text
+    from ..model import DeviceProfile
+
+    notes: list[str] = []
+    df, sessions = load_sessions(paths, include_simulated=include_simulated, notes=notes)
+    names = sorted({str(s.meta["experiment"]) for s in sessions})
+    if len(names) > 1:
+        raise InputError("sessions of different experiments are mixed ("
+                         + ", ".join(names) + "); fit one experiment's sessions at a time")
+    shas = {s.meta["experiment_file"].get("sha256") for s in sessions
+            if isinstance(s.meta.get("experiment_file"), dict)}
+    if len(shas) > 1:
+        raise InputError(f"the sessions of {names[0]} ran different versions of its experiment "
+                         "file (their SHA-256 differ); fit the sessions of one version at a time")
+    first = sessions[0]
+    ef = first.meta.get("experiment_file")
+    if not isinstance(ef, dict) or not isinstance(ef.get("text"), str):
+        raise InputError("the session record does not hold the experiment's text",
+                         path=str(first.record))
+    lx = load_experiment_text(ef["text"], ef.get("path") or "experiment.yaml")
+    if lx.experiment.adaptive is not None:
+        raise InputError(f"{names[0]} chooses its levels adaptively; fitting such sessions is "
+                         "not supported yet")
+    profiles = {repr(s.meta.get("device_profile")) for s in sessions}
+    if len(profiles) > 1:
+        raise InputError("the sessions ran on different device profiles; fit the sessions of "
+                         "one device at a time")
+    try:
+        profile = DeviceProfile.model_validate(first.meta["device_profile"])
+    except Exception:       # noqa: BLE001 - a record edited by hand
+        raise InputError("the session record's device_profile is not a device profile",
+                         path=str(first.record)) from None
+    model = ObserverModel.for_experiment(lx, profile, params_file=params_file)
+    conditions = {tuple(c.levels[f] for f in lx.experiment.factors): c
+                  for c in enumerate_conditions(lx)}
+    factors = list(lx.experiment.factors)
+    trials: dict[str, list[Trial]] = {}
+    missing = 0
+    for s in sessions:
+        ev = events_path(s)
+        if ev is None or not ev.is_file():
+            raise InputError("this session has no device events (its _events.tsv is missing), "
+                             "so what was played in each trial is not known; a fit needs "
+                             "them", path=str(s.dir))
+        played = _played_by_trial(ev, s.trials)
+        t = s.trials
+        t = t[(t["practice"].fillna(0) == 0) & (t["status"].astype(str) == "ok")
+              & t["answer"].notna()]
+        if len(t) and not played and t["n_pulses"].fillna(0).sum() > 0:
+            raise InputError("this session's device events are empty: what was played in "
+                             "each trial is not known; a fit needs them", path=str(ev))
+        who = str(s.meta["participant"])
+        for row in t.itertuples(index=False):
+            r = row._asdict()
+            cond = conditions.get(tuple(str(r[f]) for f in factors))
+            report = played.get(int(r["trial"]))
+            if report is None and (r.get("n_pulses") or 0) > 0:
+                missing += 1
+                continue
+            if cond is None:
+                missing += 1
+                continue
+            if report is None:
+                report = PlayReport(device=profile.name, started_at_ms=0.0, duration_ms=0.0,
+                                    pulses=[])
+            trials.setdefault(who, []).append(Trial(str(r["question"]), cond, report,
+                                                    str(r["answer"])))
+    if missing:
+        notes.append(f"{missing} answered trial(s) without device events (or of a condition "
+                     "the experiment does not declare) left out")
+    if not trials:
+        raise InputError("no answered trials with device events in these sessions")
+    return FitData(model, trials, len(sessions), notes, next(iter(shas), None) or "")
+
+
+def _played_by_trial(path: Path, beh: pd.DataFrame) -> dict[int, PlayReport]:
+    """The first play of each trial, from the device events, its onsets from the play's
+    start (the trial log's stimulus_onset_ms)."""
+    try:
+        ev = pd.read_csv(path, sep="\t", na_values=["n/a"], keep_default_na=False)
+    except (pd.errors.ParserError, UnicodeDecodeError, OSError) as e:
+        raise InputError(f"cannot read the device events: {e}", path=str(path)) from None
+    need = {"trial", "play", "row", "col", "onset_ms", "duration_ms"}
+    if not need <= set(ev.columns):
+        raise InputError("not a device events log as vtexp writes it (it lacks "
+                         + ", ".join(sorted(need - set(ev.columns))) + ")", path=str(path))
+    ev = ev[ev["play"] == 0]
+    start = beh.drop_duplicates("trial").set_index("trial")["stimulus_onset_ms"]
+    out: dict[int, PlayReport] = {}
+    for trial, g in ev.groupby("trial", sort=False):
+        t0 = start.get(int(trial))
+        if t0 is None or t0 != t0:
+            t0 = float(g["onset_ms"].min())
+        pulses = []
+        for p in g.itertuples(index=False):
+            train = None
+            amp = getattr(p, "amplitude_v", float("nan"))
+            if amp == amp and amp is not None:
+                train = PulseTrain(amplitude_v=float(amp), frequency_hz=float(p.frequency_hz),
+                                   pulse_width_ms=float(p.pulse_width_ms))
+            level = getattr(p, "level", float("nan"))
+            onset = round(float(p.onset_ms) - float(t0), 3)
+            pulses.append(PlayedPulse.model_construct(
+                row=int(p.row), col=int(p.col),
+                scheduled_onset_ms=float(getattr(p, "scheduled_onset_ms", onset)),
+                onset_ms=onset, duration_ms=round(float(p.duration_ms), 3),
+                level=None if level != level else int(level), train=train))
+        end = max(q.onset_ms + q.duration_ms for q in pulses)
+        out[int(trial)] = PlayReport.model_construct(device="", started_at_ms=float(t0),
+                                                     duration_ms=end, pulses=pulses,
+                                                     completed=True)
+    return out
+
+
+# --------------------------------------------------------------------------- the population
+
+@dataclass
+class Population:
+    """The centre and spread of each fitted parameter over the participants who identify it.
+
+    ``values``: the parameter's value in the observer file (the population's median for
+    log-normal parameters, the logistic of the mean logit for the lapse); ``spreads``:
+    the ``population:`` fields. The spread is that of the estimates less their own
+    sampling variance (the squared half-width of each interval over 1.96, on the scale
+    the parameter varies on), never below 0.
+    """
+
+    values: dict[str, float]
+    spreads: dict[str, float]
+    used: dict[str, int]
+    notes: list[str]
+
+
+def population(fits: list[ParticipantFit], names: list[str]) -> Population:
+    values, spreads, used, notes = {}, {}, {}, []
+    for n in names:
+        spec = PARAMS[n]
+        got = [f.params[n] for f in fits if f.params[n].identified]
+        used[n] = len(got)
+        if not got:
+            notes.append(f"{n}: identified for no participant; the observer file keeps its "
+                         "value")
+            continue
+        z, se2 = [], []
+        for p in got:
+            tr = _pop_scale(n)
+            z.append(tr(p.estimate))
+            se2.append(((tr(p.high) - tr(p.low)) / (2 * 1.96)) ** 2)
+        z = np.array(z)
+        centre = float(z.mean())
+        values[n] = _pop_inverse(n)(centre)
+        if spec.spread is None:
+            continue
+        if len(got) < 2:
+            notes.append(f"{n}: one participant identifies it; its spread is the observer "
+                         "file's")
+            continue
+        if n == "rating_bias":      # the population is centred on no bias: spread about 0
+            var = float((z ** 2).mean()) - float(np.mean(se2))
+        else:
+            var = float(z.var(ddof=1)) - float(np.mean(se2))
+        sd = math.sqrt(max(var, 0.0))
+        spreads[spec.spread] = math.sqrt(math.expm1(sd * sd)) if spec.log else sd
+    return Population(values, spreads, used, notes)
+
+
+def _pop_scale(name: str):
+    if name == "lapse":
+        return lambda x: math.log(max(x, 1e-3) / (1 - max(x, 1e-3)))
+    if PARAMS[name].log:
+        return math.log
+    return lambda x: x
+
+
+def _pop_inverse(name: str):
+    if name == "lapse":
+        return lambda z: 1 / (1 + math.exp(-z))
+    if PARAMS[name].log:
+        return math.exp
+    return lambda z: z
+
+
+#: The population fields' upper bounds (vtexp.observer.params.PopulationSpread).
+_SPREAD_MAX = {"efficiency_cv": 3.0, "decision_noise_cv": 3.0, "lapse_logit_sd": 5.0,
+               "rating_bias_sd": 5.0}
+
+
+def observer_yaml(base_file: Path, pop: Population, fits: list[ParticipantFit], names: list[str],
+                  *, source: str, experiment: str) -> str:
+    """The observer file: ``base_file`` with the fitted centres and spreads in place, the
+    fit's provenance and every participant's estimate in its header."""
+    import yaml
+
+    from ..yamlio import load_yaml
+    data = dict(load_yaml(base_file).data or {})
+    for n, v in pop.values.items():
+        if n == "rating_bias":
+            continue                       # the population is centred on 0 (params.py)
+        data[n] = round(float(v), 6)
+    spreads = dict(data.get("population") or {})
+    for k, v in pop.spreads.items():
+        spreads[k] = round(min(float(v), _SPREAD_MAX.get(k, v)), 6)
+    data["population"] = spreads
+    head = [f"# Fitted by vtexp observer fit to {len(fits)} participant(s) of {experiment}",
+            f"# ({source}), from {base_file.name}: fitted {', '.join(names)}; every other",
+            "# value is the base file's. Estimates and 95 % profile-likelihood intervals:"]
+    for f in fits:
+        head.append(f"#   {f.participant}: " + "; ".join(
+            f"{n} {f.params[n].text()}" for n in names) + f" ({f.answers} answers)")
+    for n in names:
+        head.append(f"# {n}: {pop.used.get(n, 0)} of {len(fits)} participants identify it")
+    head += [f"# {t}" for t in pop.notes]
+    body = yaml.safe_dump(data, sort_keys=False, allow_unicode=True)
+    return "\n".join(head) + "\n" + body
+
+
+# --------------------------------------------------------------------------- the whole fit
+
+@dataclass
+class FitResult:
+    experiment: str
+    names: list[str]
+    fits: list[ParticipantFit]
+    population: Population
+    seconds: float
+    notes: list[str]
+
+
+def fit_all(data: FitData, names: list[str], *, workers: int = 1) -> FitResult:
+    """Every participant of ``data`` fitted (in ``workers`` processes), and the population."""
+    t0 = time.perf_counter()
+    model = data.model
+    check_names(names, model)
+    fixed = decision_values(model)
+    who = model.participant(0, "fit", typical=True)
+    people = sorted(data.trials)
+    fits = []
+    if workers > 1 and len(people) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(min(workers, len(people))) as pool:
+            fits = list(pool.map(_fit_one, [(model, who, data.trials[p], names, fixed, p)
+                                            for p in people]))
+    else:
+        for p in people:
+            fits.append(_fit_one((model, who, data.trials[p], names, fixed, p)))
+    notes = list(data.notes)
+    overridden = [n for n in names if n in model.spec.params]
+    if overridden:
+        notes.append(f"the experiment's observer.params sets {', '.join(overridden)}, which "
+                     "overrides an observer file: vtexp simulate of this experiment keeps the "
+                     "experiment's value")
+    return FitResult(model.lx.experiment.name, names, fits, population(fits, names),
+                     time.perf_counter() - t0, notes)
+
+
+def _fit_one(args) -> ParticipantFit:
+    model, who, trials, names, fixed, participant = args
+    lik = Likelihood(model, who, trials)
+    fit = fit_participant(lik, names, fixed, participant=participant)
+    if lik.unknown:
+        fit.notes.append(f"{lik.unknown} answer(s) that are not an option of their question "
+                         "left out")
+    return fit
