@@ -122,6 +122,9 @@ class ParameterFit:
     low: float
     high: float
     identified: bool
+    #: the profile log-likelihood (less its maximum) at ``grid`` values over the range
+    grid: list[float] = field(default_factory=list)
+    profile: list[float] = field(default_factory=list)
 
     def text(self, digits: int = 3) -> str:
         if not self.identified:
@@ -194,15 +197,17 @@ def fit_participant(lik: Likelihood, names: list[str], fixed: dict[str, float], 
 
     out: dict[str, ParameterFit] = {}
     for i, s in enumerate(specs):
-        low, high, better = _profile(nll, u_hat, nll_hat, i, bounds, modes)
-        if better is not None and better[1] < nll_hat - 1e-6:      # the profile found higher
+        low, high, better, grid, prof = _profile(nll, u_hat, nll_hat, i, bounds, modes)
+        if better is not None and better[1] < nll_hat - 1e-3:      # the profile found higher
             u_hat, nll_hat = better
-            low, high, _ = _profile(nll, u_hat, nll_hat, i, bounds, modes)
+            low, high, _, grid, prof = _profile(nll, u_hat, nll_hat, i, bounds, modes)
         lo_b, hi_b = bounds[i]
         span = hi_b - lo_b
         flat = low <= lo_b + 1e-6 * span and high >= hi_b - 1e-6 * span
         out[s.name] = ParameterFit(s.name, None if flat else s.from_u(u_hat[i]),
-                                   s.from_u(low), s.from_u(high), not flat)
+                                   s.from_u(low), s.from_u(high), not flat,
+                                   [s.from_u(float(g)) for g in grid],
+                                   [float(x) for x in prof])
     return ParticipantFit(participant, lik.n, -nll_hat, out, time.perf_counter() - t0, calls[0])
 
 
@@ -210,72 +215,93 @@ def _widest(bounds) -> float:
     return max(hi - lo for lo, hi in bounds)
 
 
+#: The smallest spread a population fit considers (on the scale the parameter varies on).
+TAU_MIN = 0.02
+
+#: Points of each profile over the parameter's whole range (its search scale), besides
+#: the estimate: the population is fitted from them (:func:`population`).
+PROFILE_POINTS = 17
+
+
 def _profile(nll, u_hat, nll_hat, i, bounds, modes=()):
-    """The 95 % profile interval of parameter ``i`` (on the search scale): walk out from
-    the estimate each way, doubling the step, until the profile has dropped by
-    HALF_CHI2 or the bound is reached, then find the crossing by Brent's method.
+    """The profile of parameter ``i`` on a grid over its range, and its 95 % interval.
 
-    At each point the other parameters are optimised from the previous point's and from
-    every other local maximum and starting point of the fit (``modes``): a likelihood
-    with two modes (a sharp participant who lapses often, or a blurred one who never
-    does) is then profiled across both."""
+    The grid is walked out from the estimate each way, each point's other parameters
+    optimised from the previous point's and from every other local maximum and starting
+    point of the fit (``modes``): a likelihood with two modes (a sharp participant who
+    lapses often, or a blurred one who never does) is profiled across both. An edge of
+    the interval is where the profile has dropped by HALF_CHI2, found by Brent's method
+    between the grid points around it; the bound when it never drops so far.
+
+    Returns (low, high, better, grid, profile): ``better`` the best point met (a higher
+    maximum than ``u_hat`` if the profile found one), ``profile`` the log-likelihood
+    less the maximum at each grid point (search scale).
+    """
     others = [j for j in range(len(u_hat)) if j != i]
-    warm = {"u": u_hat.copy()}
     better: list = [None]
+    lo_b, hi_b = bounds[i]
+    span = hi_b - lo_b
+    solved: dict[float, np.ndarray] = {float(u_hat[i]): u_hat.copy()}
 
-    def prof(x: float) -> float:
+    def prof_at(x: float) -> float:
+        near = min(solved, key=lambda k: abs(k - x))
+        warm = solved[near]
         if not others:
             u = u_hat.copy()
             u[i] = x
             val = nll(u)
         else:
             def inner(w):
-                u = warm["u"].copy()
+                u = warm.copy()
                 u[i] = x
                 u[others] = w
                 return nll(u)
-            starts = [warm["u"][others]]
-            starts += [m[others] for m in modes
-                       if np.abs(m[others] - starts[0]).max() > 0.05 * _widest(bounds)]
+            starts = [warm[others]]
+            if len(others) == 1:        # one other parameter: start from the best of a scan
+                lo, hi = bounds[others[0]]
+                scan = [np.array([v]) for v in np.linspace(lo, hi, 9)] + starts
+                starts = [min(scan, key=inner)]
+            else:
+                starts += [m[others] for m in modes
+                           if np.abs(m[others] - starts[0]).max() > 0.05 * _widest(bounds)]
             r = min((minimize(inner, w0, method="L-BFGS-B",
                               bounds=[bounds[j] for j in others],
                               options={"eps": 1e-5, "maxiter": 100}) for w0 in starts),
                     key=lambda r: r.fun)
-            u = warm["u"].copy()
+            u = warm.copy()
             u[i] = x
             u[others] = r.x
-            warm["u"] = u
             val = float(r.fun)
+        solved[float(x)] = u
         if better[0] is None or val < better[0][1]:
-            full = warm["u"].copy() if others else u_hat.copy()
-            full[i] = x
-            better[0] = (full, val)
-        return val - nll_hat - HALF_CHI2
+            better[0] = (u.copy(), val)
+        return val
 
-    lo_b, hi_b = bounds[i]
-    span = hi_b - lo_b
-    edges = []
-    for direction, bound in ((-1, lo_b), (1, hi_b)):
-        warm["u"] = u_hat.copy()
-        x0, d0 = u_hat[i], -HALF_CHI2
-        step = span / 32
-        edge = bound
-        while True:
-            x1 = x0 + direction * step
-            if (x1 - bound) * direction >= 0:
-                x1 = bound
-            d1 = prof(x1)
+    grid = np.linspace(lo_b, hi_b, PROFILE_POINTS)
+    values = np.empty(len(grid))
+    right = np.flatnonzero(grid > u_hat[i])
+    left = np.flatnonzero(grid <= u_hat[i])[::-1]
+    for idx in (right, left):          # outward from the estimate, each way
+        for k in idx:
+            values[k] = prof_at(float(grid[k]))
+    drop = values - nll_hat - HALF_CHI2                       # > 0: outside the interval
+
+    def edge(direction: int) -> float:
+        xs = [float(u_hat[i])] + [float(g) for g in (grid[right] if direction > 0
+                                                       else grid[left])]
+        ds = [-HALF_CHI2] + [float(d) for d in (drop[right] if direction > 0
+                                                else drop[left])]
+        for (x0, d0), (x1, d1) in zip(zip(xs, ds), zip(xs[1:], ds[1:])):
             if d1 > 0:
                 a, b = sorted((x0, x1))
-                fa, fb = (d0, d1) if a == x0 else (d1, d0)
-                edge = x0 if fa * fb > 0 else brentq(prof, a, b, xtol=span * 1e-3)
-                break
-            if x1 == bound:
-                break
-            x0, d0 = x1, d1
-            step *= 2
-        edges.append(edge)
-    return edges[0], edges[1], better[0]
+                if d0 > 0:
+                    return x0
+                return brentq(lambda x: prof_at(x) - nll_hat - HALF_CHI2, a, b,
+                              xtol=span * 1e-3)
+        return hi_b if direction > 0 else lo_b
+
+    low, high = edge(-1), edge(1)
+    return low, high, better[0], grid, -(values - min(nll_hat, values.min()))
 
 
 # --------------------------------------------------------------------------- reading sessions
@@ -290,6 +316,9 @@ class FitData:
     sessions: int
     notes: list[str]
     experiment_sha256: str
+    #: what a worker process rebuilds the model from: (experiment text, its path, the
+    #: device profile as JSON, the observer file)
+    source: tuple = ()
 
 
 def read_trials(paths: list, *, params_file=None, include_simulated: bool = False) -> FitData:
@@ -369,7 +398,9 @@ def read_trials(paths: list, *, params_file=None, include_simulated: bool = Fals
                      "the experiment does not declare) left out")
     if not trials:
         raise InputError("no answered trials with device events in these sessions")
-    return FitData(model, trials, len(sessions), notes, next(iter(shas), None) or "")
+    return FitData(model, trials, len(sessions), notes, next(iter(shas), None) or "",
+                   (ef["text"], ef.get("path") or "experiment.yaml", profile.model_dump_json(),
+                    None if params_file is None else str(params_file)))
 
 
 def _played_by_trial(path: Path, beh: pd.DataFrame) -> dict[int, PlayReport]:
@@ -415,13 +446,12 @@ def _played_by_trial(path: Path, beh: pd.DataFrame) -> dict[int, PlayReport]:
 
 @dataclass
 class Population:
-    """The centre and spread of each fitted parameter over the participants who identify it.
+    """The centre and spread of each fitted parameter across participants.
 
-    ``values``: the parameter's value in the observer file (the population's median for
-    log-normal parameters, the logistic of the mean logit for the lapse); ``spreads``:
-    the ``population:`` fields. The spread is that of the estimates less their own
-    sampling variance (the squared half-width of each interval over 1.96, on the scale
-    the parameter varies on), never below 0.
+    ``values``: the parameter's value in the observer file (the median of the
+    log-normal for efficiency and decision noise, the logistic of the mean logit for
+    the lapse); ``spreads``: the ``population:`` fields. ``used``: the participants
+    whose data identify the parameter.
     """
 
     values: dict[str, float]
@@ -431,52 +461,98 @@ class Population:
 
 
 def population(fits: list[ParticipantFit], names: list[str]) -> Population:
+    """The population of :func:`~vtexp.observer.params.draw_participant` that makes the
+    participants' answers most likely.
+
+    Each participant's profile likelihood of the parameter (:func:`_profile`) stands
+    for their likelihood, and the parameter varies between participants as
+    ``draw_participant`` draws it: normal on the log scale (efficiency, decision
+    noise), on the logit scale (lapse), or about 0 (rating bias). The centre ``mu`` and
+    spread ``tau`` maximise the product over participants of the integral of their
+    profile likelihood against that distribution (the marginal likelihood of a
+    normal random-effects model): a participant whose profile is flat adds nothing, one
+    whose estimate sits at a bound adds what their profile says, not a number. A
+    parameter that is one value for everyone in the model (abstain criterion, rating
+    step, turns SD) takes the value that maximises the sum of the profiles. With few
+    participants ``tau`` is known poorly (and is biased low, as every maximum-likelihood
+    variance is).
+    """
     values, spreads, used, notes = {}, {}, {}, []
     for n in names:
         spec = PARAMS[n]
-        got = [f.params[n] for f in fits if f.params[n].identified]
-        used[n] = len(got)
-        if not got:
+        ps = [f.params[n] for f in fits if f.params[n].identified and f.params[n].grid]
+        used[n] = len(ps)
+        if not ps:
             notes.append(f"{n}: identified for no participant; the observer file keeps its "
                          "value")
             continue
-        z, se2 = [], []
-        for p in got:
-            tr = _pop_scale(n)
-            z.append(tr(p.estimate))
-            se2.append(((tr(p.high) - tr(p.low)) / (2 * 1.96)) ** 2)
-        z = np.array(z)
-        centre = float(z.mean())
-        values[n] = _pop_inverse(n)(centre)
+        lo_u, hi_u = spec.bounds_u
+        u = np.linspace(lo_u, hi_u, 401)
+        x = np.array([spec.from_u(v) for v in u])
+        L = np.array([np.interp(u, [spec.to_u(g) for g in p.grid], p.profile) for p in ps])
         if spec.spread is None:
+            values[n] = float(x[int(np.argmax(L.sum(axis=0)))])
             continue
-        if len(got) < 2:
+        if n == "lapse":
+            t = np.log(np.clip(x, 1e-4, None) / (1 - x))
+            jac = 1 / np.clip(x * (1 - x), 1e-4 * (1 - 1e-4), None)
+        else:
+            t, jac = (u, np.ones_like(u))
+        du = u[1] - u[0]
+        lik = np.exp(L)                                                  # (participants, u)
+
+        def neg_marginal(theta, t=t, jac=jac, lik=lik, du=du, centred=(n == "rating_bias")):
+            mu = 0.0 if centred else theta[0]
+            tau = math.exp(theta[-1])
+            dens = np.exp(-0.5 * ((t - mu) / tau) ** 2) / (tau * math.sqrt(2 * math.pi)) * jac
+            m = (lik * dens).sum(axis=1) * du
+            return -float(np.log(np.maximum(m, 1e-300)).sum())
+        best_i = np.argmax(L, axis=1)
+        t_hat = t[best_i]
+        centred = n == "rating_bias"
+        tau0 = math.log(max(float(np.std(t_hat)), 0.1))
+        tau_lo = math.log(TAU_MIN)
+        tau_hi = math.log(max(float(t.max() - t.min()), 0.1))
+        # A lapse rate's centre stays above 0.1 %: below it the logit scale has endless room
+        # for profiles that are all highest at 0 (Wichmann & Hill 2001: 0-6 %).
+        t_min = math.log(0.001 / 0.999) if n == "lapse" else float(t.min())
+
+        def fit_mu_tau(fixed_tau=None):
+            if centred and fixed_tau is not None:
+                return neg_marginal([math.log(fixed_tau)]), 0.0, fixed_tau
+            if fixed_tau is not None:
+                f = lambda th: neg_marginal([th[0], math.log(fixed_tau)])   # noqa: E731
+                starts, bnds = [[float(np.mean(t_hat))], [float(np.median(t_hat))]], \
+                    [(t_min, float(t.max()))]
+            elif centred:
+                f, starts, bnds = neg_marginal, [[tau0]], [(tau_lo, tau_hi)]
+            else:
+                f = neg_marginal
+                starts = [[max(float(np.mean(t_hat)), t_min), tau0],
+                          [max(float(np.median(t_hat)), t_min), math.log(0.3)]]
+                bnds = [(t_min, float(t.max())), (tau_lo, tau_hi)]
+            r = min((minimize(f, s0, method="L-BFGS-B", bounds=bnds) for s0 in starts),
+                    key=lambda r: r.fun)
+            mu = 0.0 if centred else float(r.x[0])
+            tau = fixed_tau if fixed_tau is not None else math.exp(float(r.x[-1]))
+            return float(r.fun), mu, tau
+
+        best, mu, tau = fit_mu_tau()
+        if n == "lapse":
+            values[n] = 1 / (1 + math.exp(-mu))
+        elif not centred:
+            values[n] = spec.from_u(mu)
+        if len(ps) < 2:
             notes.append(f"{n}: one participant identifies it; its spread is the observer "
                          "file's")
             continue
-        if n == "rating_bias":      # the population is centred on no bias: spread about 0
-            var = float((z ** 2).mean()) - float(np.mean(se2))
-        else:
-            var = float(z.var(ddof=1)) - float(np.mean(se2))
-        sd = math.sqrt(max(var, 0.0))
-        spreads[spec.spread] = math.sqrt(math.expm1(sd * sd)) if spec.log else sd
+        # The spread is identified only if no spread at all is unlikely (likelihood ratio).
+        if fit_mu_tau(TAU_MIN)[0] - best < HALF_CHI2:
+            notes.append(f"{n}: these participants do not tell a spread from none; its "
+                         "spread is the observer file's")
+            continue
+        spreads[spec.spread] = math.sqrt(math.expm1(tau * tau)) if spec.log else tau
     return Population(values, spreads, used, notes)
-
-
-def _pop_scale(name: str):
-    if name == "lapse":
-        return lambda x: math.log(max(x, 1e-3) / (1 - max(x, 1e-3)))
-    if PARAMS[name].log:
-        return math.log
-    return lambda x: x
-
-
-def _pop_inverse(name: str):
-    if name == "lapse":
-        return lambda z: 1 / (1 + math.exp(-z))
-    if PARAMS[name].log:
-        return math.exp
-    return lambda z: z
 
 
 #: The population fields' upper bounds (vtexp.observer.params.PopulationSpread).
@@ -534,10 +610,11 @@ def fit_all(data: FitData, names: list[str], *, workers: int = 1) -> FitResult:
     who = model.participant(0, "fit", typical=True)
     people = sorted(data.trials)
     fits = []
-    if workers > 1 and len(people) > 1:
+    if workers > 1 and len(people) > 1 and data.source:
         from concurrent.futures import ProcessPoolExecutor
-        with ProcessPoolExecutor(min(workers, len(people))) as pool:
-            fits = list(pool.map(_fit_one, [(model, who, data.trials[p], names, fixed, p)
+        with ProcessPoolExecutor(min(workers, len(people)), initializer=_init_worker,
+                                 initargs=data.source) as pool:
+            fits = list(pool.map(_fit_one, [(None, who, data.trials[p], names, fixed, p)
                                             for p in people]))
     else:
         for p in people:
@@ -552,8 +629,25 @@ def fit_all(data: FitData, names: list[str], *, workers: int = 1) -> FitResult:
                      time.perf_counter() - t0, notes)
 
 
+_WORKER_MODEL: ObserverModel | None = None
+
+
+def _init_worker(text: str, path: str, profile_json: str, params_file: str | None) -> None:
+    """A worker process's model, rebuilt from the experiment's text (its caches are its own)."""
+    global _WORKER_MODEL
+    from threadpoolctl import threadpool_limits
+
+    from ..experiment import load_experiment_text
+    from ..model import DeviceProfile
+    threadpool_limits(limits=1, user_api="blas")        # a process per core already
+    lx = load_experiment_text(text, path)
+    _WORKER_MODEL = ObserverModel.for_experiment(
+        lx, DeviceProfile.model_validate_json(profile_json), params_file=params_file)
+
+
 def _fit_one(args) -> ParticipantFit:
     model, who, trials, names, fixed, participant = args
+    model = model or _WORKER_MODEL
     lik = Likelihood(model, who, trials)
     fit = fit_participant(lik, names, fixed, participant=participant)
     if lik.unknown:

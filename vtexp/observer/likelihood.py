@@ -99,9 +99,32 @@ class _Choice:
         # Fixed uniforms (common random numbers) for the separation of variables: one
         # fewer than the dimensions of the orthant, which is K - 1.
         self.w = _sobol_uniforms(max(k - 2, 1), qmc_points)
+        # Without an abstain option only the options answered need their probability
+        # (the answered templates of each geometry: a participant who is mostly right
+        # needs about one of K).
+        self.pairs = None
+        if self.abstain is None and geoms:
+            g, j = np.nonzero(counts[:, self.cols] > 0)
+            self.pairs = (g, j)
 
-    def probabilities(self, v: dict[str, float]) -> np.ndarray:
-        """P(option) for each geometry, before the lapse: (geometries, options).
+    def _orthants(self, s, sd, c, g, j) -> np.ndarray:
+        """P(option j wins by c) for the (geometry g, template j) pairs."""
+        k = self.k
+        m = -(s * s)[:, None] * self.half                                  # mean of E, (M1)
+        C = (s * s)[:, None, None] * self.gram + sd * sd * np.eye(k)       # Cov(E), (M1)
+        o = self.others[j]                                                 # (P, n)
+        Cg = C[g]                                                          # (P, K, K)
+        rows = np.arange(len(g))[:, None]
+        c_oo = Cg[rows[:, :, None], o[:, :, None], o[:, None, :]]          # (P, n, n)
+        c_oj = Cg[rows, o, j[:, None]]                                     # (P, n)
+        c_jj = Cg[np.arange(len(g)), j, j][:, None, None]
+        cov = c_oo - c_oj[..., :, None] - c_oj[..., None, :] + c_jj        # Cov(E_i - E_j)
+        b = -c - (m[g[:, None], o] - m[g, j][:, None])                     # (P, n)
+        return _orthant(b, np.linalg.cholesky(cov), self.w)
+
+    def probabilities(self, v: dict[str, float], full: bool = False) -> np.ndarray:
+        """P(option) for each geometry, before the lapse: (geometries, options); without
+        an abstain option only of the options answered, unless ``full``.
 
         Option ``j`` is answered when ``E_i - E_j <= -c`` for every other template
         ``i``: a multivariate normal orthant of K - 1 dimensions, computed by Genz's
@@ -120,20 +143,15 @@ class _Choice:
         c = v["abstain_criterion"] if self.abstain is not None else 0.0
         sd = max(v["decision_noise"], 1e-3)
         s = self.scale * np.sqrt(v["efficiency"])                          # (G,)
-        m = -(s * s)[:, None] * self.half                                  # mean of E, (M1)
-        C = (s * s)[:, None, None] * self.gram + sd * sd * np.eye(k)       # Cov(E), (M1)
-        o = self.others                                                    # (K, n)
-        j = np.arange(k)
-        c_oo = C[:, o[:, :, None], o[:, None, :]]                          # (G, K, n, n)
-        c_oj = C[:, o, j[:, None]]                                         # (G, K, n)
-        c_jj = C[:, j, j][:, :, None, None]
-        cov = c_oo - c_oj[..., :, None] - c_oj[..., None, :] + c_jj        # Cov(E_i - E_j)
-        b = -c - (m[:, o] - m[:, j, None])                                 # (G, K, n)
-        L = np.linalg.cholesky(cov)
-        pj = _orthant(b, L, self.w)                                        # (G, K)
-        if self.abstain is None:
-            pj /= pj.sum(axis=1, keepdims=True)
-        else:
+        if self.pairs is not None and not full:
+            g, j = self.pairs
+            out[g, np.asarray(self.cols)[j]] = np.clip(self._orthants(s, sd, c, g, j), 0, 1)
+            return out
+        g, j = (a.ravel() for a in np.meshgrid(np.arange(n_g), np.arange(k), indexing="ij"))
+        pj = self._orthants(s, sd, c, g, j).reshape(n_g, k)
+        # Not renormalised without an abstain option (they sum to 1 within the quadrature's
+        # error, about 1e-3), so that a trial's probability is the same either way.
+        if self.abstain is not None:
             out[:, self.abstain] = np.clip(1.0 - pj.sum(axis=1), 0.0, 1.0)
         out[:, self.cols] = np.clip(pj, 0.0, 1.0)
         return out
@@ -171,7 +189,7 @@ class _Rating:
         self.scale = np.array([x.scale for x in geoms])
         self.spread = np.array([x.spread for x in geoms])
 
-    def probabilities(self, v: dict[str, float]) -> np.ndarray:
+    def probabilities(self, v: dict[str, float], full: bool = False) -> np.ndarray:
         s = self.scale * np.sqrt(v["efficiency"])
         mean = -s * s * self.dhalf                                         # E_high - E_low
         var = s * s * self.var_xi + 2 * v["decision_noise"] ** 2
@@ -193,7 +211,7 @@ class _Count:
         self.counts = counts
         self.turns = np.array([g.turns for g in geoms])
 
-    def probabilities(self, v: dict[str, float]) -> np.ndarray:
+    def probabilities(self, v: dict[str, float], full: bool = False) -> np.ndarray:
         sd = max(v["turns_sd"], 1e-6)
         edges = np.arange(self.lo, self.hi) + 0.5                           # between counts
         cdf = ndtr((edges[None, :] - self.turns[:, None]) / sd)
@@ -251,18 +269,19 @@ class Likelihood:
             self.parts.append(part)
         self.kinds = {questions[n].kind for n in groups}
 
-    def probabilities(self, values: dict[str, float]) -> list[np.ndarray]:
-        """Per question: P(answer) of every geometry and option, lapses included."""
+    def probabilities(self, values: dict[str, float], full: bool = True) -> list[np.ndarray]:
+        """Per question: P(answer) of every geometry and option, lapses included (with
+        ``full=False``, only of the answers given: the others are left at the floor)."""
         lapse = values["lapse"]
         out = []
         for part in self.parts:
-            p = np.maximum(part.probabilities(values), FLOOR)
+            p = np.maximum(part.probabilities(values, full), FLOOR)
             out.append((1.0 - lapse) * p + lapse / p.shape[1])
         return out
 
     def __call__(self, values: dict[str, float]) -> float:
         total = 0.0
-        for part, p in zip(self.parts, self.probabilities(values), strict=True):
+        for part, p in zip(self.parts, self.probabilities(values, full=False), strict=True):
             total += float((part.counts * np.log(p)).sum())
         return total
 
