@@ -97,6 +97,25 @@ def test_known_parameters_are_recovered_within_their_intervals():
     assert inside >= 5
 
 
+def test_the_integration_time_is_recovered_on_its_grid():
+    """The back's integration time, the parameter seed 001's 0.1 s collapse asks about: a
+    participant of the duration/interval study (two sessions) whose percept integrates
+    over 150 ms is fitted back from the default's 40 ms, within a finite interval."""
+    from vtexp.observer.fit import fit_percept_participant, percept_grid, with_percept
+    setup = Setup.load(GRID, overrides={"integration_ms": 150.0})
+    m = setup.model
+    rows = [r for ses in (1, 2)
+            for r in simulate_participant(setup, 5, "t1", session=ses, typical=True)]
+    who = m.participant(0, "fit", typical=True)
+    grid = percept_grid("integration_ms")
+    liks = [Likelihood(m, with_percept(who, "integration_ms", v), _trials(setup, rows))
+            for v in grid]
+    f = fit_percept_participant(liks, "integration_ms", grid, [], decision_values(m))
+    p = f.params["integration_ms"]
+    assert p.identified and p.low <= 150.0 <= p.high
+    assert p.low > grid[0] and p.high < grid[-1] and p.high / p.low < 3
+
+
 def test_a_parameter_the_answers_do_not_depend_on_is_not_identified(tmp_path):
     """Every answer of the duration/interval study rendered as the same circle: the
     percept cannot favour any answer, so efficiency changes nothing and is reported as
@@ -189,12 +208,14 @@ def test_the_percepts_come_from_the_device_events(logged, tmp_path):
     assert moved == [(r, c, o + 50, d) for r, c, o, d in played]
 
 
-@pytest.mark.parametrize("case", ["unknown", "uninformed", "percept", "mixed", "no-events"])
+@pytest.mark.parametrize("case", ["unknown", "uninformed", "percept", "two-percepts", "mixed",
+                                  "no-events"])
 def test_bad_input_is_one_message(logged, tmp_path, capsys, case):
     grid = logged / "grid" / "duration_interval_grid"
     args = {"unknown": [str(grid), "--params", "efficiency,sharpness"],
             "uninformed": [str(grid), "--params", "rating_step"],
-            "percept": [str(grid), "--params", "integration_ms"],
+            "percept": [str(grid), "--params", "intensity_levels"],
+            "two-percepts": [str(grid), "--params", "integration_ms,two_point_threshold_mm"],
             "mixed": [str(grid), str(logged / "other")],
             "no-events": None}[case]
     if case == "no-events":
@@ -210,6 +231,7 @@ def test_bad_input_is_one_message(logged, tmp_path, capsys, case):
     assert code == 2 and len(errors) == 1 and "Traceback" not in err
     expect = {"unknown": "no parameter 'sharpness'", "uninformed": "asks no rating question",
               "percept": "shapes the percept itself", "mixed": "different experiments",
+              "two-percepts": "fit one of them at a time",
               "no-events": "no device events"}[case]
     assert expect in errors[0]
     assert not (tmp_path / "o.yaml").exists()

@@ -27,7 +27,7 @@ def register(sub) -> None:
     f.add_argument("--params", default="efficiency,lapse", metavar="A,B",
                    help="parameters to fit, comma-separated (default efficiency,lapse; also "
                         "decision_noise, abstain_criterion, rating_bias, rating_step, "
-                        "turns_sd)")
+                        "turns_sd, and one of integration_ms and two_point_threshold_mm)")
     f.add_argument("--observer", metavar="FILE",
                    help="the observer file whose other values are held fixed (default "
                         "protocols/observers/default.yaml)")
@@ -68,7 +68,8 @@ def cmd_fit(args) -> int:
     base = Path(args.observer) if args.observer else protocols_dir() / "observers" / "default.yaml"
     target = Path(args.out) if args.out else Path(f"observer-{exp.name}.yaml")
     text = observer_yaml(base, res.population, res.fits, names,
-                         source=", ".join(map(str, args.data)), experiment=exp.name)
+                         source=", ".join(map(str, args.data)), experiment=exp.name,
+                         site=data.model.site)
     try:
         target.write_text(text, encoding="utf-8")
     except OSError as e:
@@ -120,8 +121,8 @@ def _print(res, names: list[str]) -> None:
 
 
 def _spread_text(name: str, spreads: dict) -> str:
-    from ..observer.fit import PARAMS
-    field = PARAMS[name].spread
+    from ..observer.fit import spec_of
+    field = spec_of(name).spread
     if field is None or field not in spreads:
         return ""
     label = "CV" if field.endswith("_cv") else "SD" + (" of the logit" if "logit" in field

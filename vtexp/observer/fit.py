@@ -70,27 +70,44 @@ PARAMS: dict[str, ParamSpec] = {p.name: p for p in (
 )}
 assert set(PARAMS) == set(DECISION)
 
-#: Parameters of the percept itself: a fit holds them at the observer file's values.
+#: Parameters of the percept itself. The percept is computed anew for each value, so
+#: they are fitted on a grid of PERCEPT_POINTS values (log-spaced over their range),
+#: one at a time; intensity_levels is held at the observer file's value.
 PERCEPT = ("two_point_threshold_mm", "integration_ms", "intensity_levels")
+PERCEPT_PARAMS: dict[str, ParamSpec] = {p.name: p for p in (
+    ParamSpec("integration_ms", 10.0, 400.0, True, "any", "integration_cv"),
+    ParamSpec("two_point_threshold_mm", 2.0, 200.0, True, "any", "two_point_threshold_cv"),
+)}
+PERCEPT_POINTS = 17
 DEFAULT_PARAMS = ("efficiency", "lapse")
+
+
+def spec_of(name: str) -> ParamSpec:
+    return PARAMS.get(name) or PERCEPT_PARAMS[name]
 
 
 def check_names(names: list[str], model: ObserverModel) -> None:
     """Each name a parameter this fit can estimate, and one the experiment's questions
     inform; otherwise one message saying why."""
-    known = ", ".join(PARAMS)
+    known = ", ".join([*PARAMS, *PERCEPT_PARAMS])
     qs = model.lx.experiment.asked()
     kinds = {q.kind for q in qs}
     abstain = any(q.kind == "choice" and any(o in model.spec.abstain for o in q.options)
                   for q in qs)
     if not names:
         raise InputError("give at least one parameter to fit", key="--params")
+    percept = [n for n in names if n in PERCEPT_PARAMS]
+    if len(percept) > 1:
+        raise InputError(f"{' and '.join(percept)} both shape the percept, which is computed "
+                         "anew for each of their values: fit one of them at a time (the other "
+                         "at the observer file's value, --observer)", key="--params")
     for n in names:
-        if n in PERCEPT:
-            raise InputError(f"{n} shapes the percept itself, which this version computes once "
-                             "per fit: it is not fitted yet; set it in the observer file "
-                             f"(--observer) and fit {', '.join(DEFAULT_PARAMS)}",
+        if n in PERCEPT and n not in PERCEPT_PARAMS:
+            raise InputError(f"{n} shapes the percept itself and takes whole values: it is "
+                             "not fitted; set it in the observer file (--observer)",
                              key="--params")
+        if n in PERCEPT_PARAMS:
+            continue
         if n not in PARAMS:
             raise InputError(f"no parameter {n!r}; the parameters a fit estimates are {known}",
                              key="--params")
@@ -146,12 +163,14 @@ class ParticipantFit:
 
 
 def fit_participant(lik: Likelihood, names: list[str], fixed: dict[str, float], *,
-                    participant: str = "", starts: int = 3) -> ParticipantFit:
+                    participant: str = "", starts: int = 3,
+                    profiles: bool = True) -> ParticipantFit:
     """Maximum likelihood over ``names`` (the others at ``fixed``), with profile intervals.
 
     The search is L-BFGS-B within each parameter's bounds, on the log scale for
     positive scale parameters, from ``starts`` starting points (the fixed values
-    and points spread over the bounds); the best is kept.
+    and points spread over the bounds); the best is kept. ``profiles=False``: the
+    maximum only (every interval is then the whole range).
     """
     t0 = time.perf_counter()
     specs = [PARAMS[n] for n in names]
@@ -196,6 +215,11 @@ def fit_participant(lik: Likelihood, names: list[str], fixed: dict[str, float], 
             modes.append(p)
 
     out: dict[str, ParameterFit] = {}
+    if not profiles:
+        for i, s in enumerate(specs):
+            out[s.name] = ParameterFit(s.name, s.from_u(u_hat[i]), s.low, s.high, True)
+        return ParticipantFit(participant, lik.n, -nll_hat, out, time.perf_counter() - t0,
+                              calls[0])
     for i, s in enumerate(specs):
         low, high, better, grid, prof = _profile(nll, u_hat, nll_hat, i, bounds, modes)
         if better is not None and better[1] < nll_hat - 1e-3:      # the profile found higher
@@ -211,9 +235,71 @@ def fit_participant(lik: Likelihood, names: list[str], fixed: dict[str, float], 
     return ParticipantFit(participant, lik.n, -nll_hat, out, time.perf_counter() - t0, calls[0])
 
 
+def fit_percept_participant(liks: list[Likelihood], name: str, values: list[float],
+                            names: list[str], fixed: dict[str, float], *,
+                            participant: str = "") -> ParticipantFit:
+    """Maximum likelihood over a percept parameter ``name`` and the decision parameters
+    ``names``: ``liks[k]`` is the likelihood with the percept at ``values[k]``.
+
+    At each value the decision parameters are maximised (the profile of ``name`` on
+    the grid); between the grid's values the profile is a cubic spline (on the log
+    scale), whose maximum is the estimate and whose drops by HALF_CHI2 are the
+    interval's edges. The decision
+    parameters' estimates and intervals are those at the grid value nearest the estimate
+    (their intervals therefore do not include the percept's uncertainty).
+    """
+    t0 = time.perf_counter()
+    spec = PERCEPT_PARAMS[name]
+    u = np.array([spec.to_u(v) for v in values])
+    ll, evals = [], 0
+    for lik in liks:
+        if names:
+            f = fit_participant(lik, names, fixed, profiles=False)
+            ll.append(f.loglik)
+            evals += f.evaluations
+        else:
+            ll.append(lik(fixed))
+            evals += 1
+    ll = np.array(ll)
+    from scipy.interpolate import CubicSpline
+    fine = np.linspace(u[0], u[-1], 2001)
+    curve = CubicSpline(u, ll)(fine)                  # the profile between the grid's points
+    b = int(np.argmax(curve))
+    u_hat, ll_hat = float(fine[b]), float(curve[b])
+    cut = ll_hat - HALF_CHI2
+
+    def edge(direction: int) -> float:
+        k = b
+        while 0 <= k + direction < len(fine):
+            if curve[k + direction] < cut:
+                x0, x1, y0, y1 = fine[k], fine[k + direction], curve[k], curve[k + direction]
+                return float(x0 + (cut - y0) * (x1 - x0) / (y1 - y0))
+            k += direction
+        return float(fine[-1] if direction > 0 else fine[0])
+
+    low, high = edge(-1), edge(1)
+    flat = low <= u[0] + 1e-9 and high >= u[-1] - 1e-9
+    near = int(np.argmin(np.abs(u - u_hat)))
+    if names:
+        rest = fit_participant(liks[near], names, fixed, participant=participant)
+        params, evals = dict(rest.params), evals + rest.evaluations
+    else:
+        params = {}
+    params = {name: ParameterFit(name, None if flat else spec.from_u(u_hat), spec.from_u(low),
+                                 spec.from_u(high), not flat, [float(v) for v in values],
+                                 [float(x) for x in ll - ll.max()]), **params}
+    return ParticipantFit(participant, liks[0].n, float(ll_hat), params,
+                          time.perf_counter() - t0, evals)
+
+
 def _widest(bounds) -> float:
     return max(hi - lo for lo, hi in bounds)
 
+
+#: The population fields' upper bounds (vtexp.observer.params.PopulationSpread).
+_SPREAD_MAX = {"efficiency_cv": 3.0, "decision_noise_cv": 3.0, "lapse_logit_sd": 5.0,
+               "integration_cv": 2.0, "two_point_threshold_cv": 2.0,
+               "rating_bias_sd": 5.0}
 
 #: The smallest spread a population fit considers (on the scale the parameter varies on).
 TAU_MIN = 0.02
@@ -479,7 +565,7 @@ def population(fits: list[ParticipantFit], names: list[str]) -> Population:
     """
     values, spreads, used, notes = {}, {}, {}, []
     for n in names:
-        spec = PARAMS[n]
+        spec = spec_of(n)
         ps = [f.params[n] for f in fits if f.params[n].identified and f.params[n].grid]
         used[n] = len(ps)
         if not ps:
@@ -551,17 +637,18 @@ def population(fits: list[ParticipantFit], names: list[str]) -> Population:
             notes.append(f"{n}: these participants do not tell a spread from none; its "
                          "spread is the observer file's")
             continue
-        spreads[spec.spread] = math.sqrt(math.expm1(tau * tau)) if spec.log else tau
+        spread = math.sqrt(math.expm1(tau * tau)) if spec.log else tau
+        if spread > _SPREAD_MAX.get(spec.spread, math.inf):
+            notes.append(f"{n}: the spread across participants ({spread:.3g}) is beyond what "
+                         f"an observer file holds; written as {_SPREAD_MAX[spec.spread]:g}")
+            spread = _SPREAD_MAX[spec.spread]
+        spreads[spec.spread] = spread
     return Population(values, spreads, used, notes)
 
 
-#: The population fields' upper bounds (vtexp.observer.params.PopulationSpread).
-_SPREAD_MAX = {"efficiency_cv": 3.0, "decision_noise_cv": 3.0, "lapse_logit_sd": 5.0,
-               "rating_bias_sd": 5.0}
-
 
 def observer_yaml(base_file: Path, pop: Population, fits: list[ParticipantFit], names: list[str],
-                  *, source: str, experiment: str) -> str:
+                  *, source: str, experiment: str, site: str | None = None) -> str:
     """The observer file: ``base_file`` with the fitted centres and spreads in place, the
     fit's provenance and every participant's estimate in its header."""
     import yaml
@@ -571,10 +658,13 @@ def observer_yaml(base_file: Path, pop: Population, fits: list[ParticipantFit], 
     for n, v in pop.values.items():
         if n == "rating_bias":
             continue                       # the population is centred on 0 (params.py)
+        if n == "two_point_threshold_mm":  # the body site's entry
+            data[n] = {**dict(data.get(n) or {}), site: round(float(v), 6)}
+            continue
         data[n] = round(float(v), 6)
     spreads = dict(data.get("population") or {})
     for k, v in pop.spreads.items():
-        spreads[k] = round(min(float(v), _SPREAD_MAX.get(k, v)), 6)
+        spreads[k] = round(float(v), 6)
     data["population"] = spreads
     head = [f"# Fitted by vtexp observer fit to {len(fits)} participant(s) of {experiment}",
             f"# ({source}), from {base_file.name}: fitted {', '.join(names)}; every other",
@@ -610,15 +700,15 @@ def fit_all(data: FitData, names: list[str], *, workers: int = 1) -> FitResult:
     who = model.participant(0, "fit", typical=True)
     people = sorted(data.trials)
     fits = []
+    jobs = [(who, data.trials[p], names, fixed, p) for p in people]
     if workers > 1 and len(people) > 1 and data.source:
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(min(workers, len(people)), initializer=_init_worker,
                                  initargs=data.source) as pool:
-            fits = list(pool.map(_fit_one, [(None, who, data.trials[p], names, fixed, p)
-                                            for p in people]))
+            fits = list(pool.map(_fit_one, [(None, *j) for j in jobs]))
     else:
-        for p in people:
-            fits.append(_fit_one((model, who, data.trials[p], names, fixed, p)))
+        for j in jobs:
+            fits.append(_fit_one((model, *j)))
     notes = list(data.notes)
     overridden = [n for n in names if n in model.spec.params]
     if overridden:
@@ -645,11 +735,34 @@ def _init_worker(text: str, path: str, profile_json: str, params_file: str | Non
         lx, DeviceProfile.model_validate_json(profile_json), params_file=params_file)
 
 
+def percept_grid(name: str) -> list[float]:
+    """The values a percept parameter is fitted at (log-spaced over its range)."""
+    spec = PERCEPT_PARAMS[name]
+    return [float(v) for v in np.geomspace(spec.low, spec.high, PERCEPT_POINTS)]
+
+
+def with_percept(who, name: str, value: float):
+    """``who`` with a percept parameter set (and the key its percept is cached under)."""
+    import dataclasses
+    who = dataclasses.replace(who, **{name: value})
+    return dataclasses.replace(who, key=(round(who.two_point_threshold_mm, 9),
+                                         who.intensity_levels, round(who.integration_ms, 9)))
+
+
 def _fit_one(args) -> ParticipantFit:
     model, who, trials, names, fixed, participant = args
     model = model or _WORKER_MODEL
-    lik = Likelihood(model, who, trials)
-    fit = fit_participant(lik, names, fixed, participant=participant)
+    percept = [n for n in names if n in PERCEPT_PARAMS]
+    if percept:
+        name = percept[0]
+        grid = percept_grid(name)
+        liks = [Likelihood(model, with_percept(who, name, v), trials) for v in grid]
+        fit = fit_percept_participant(liks, name, grid, [n for n in names if n != name],
+                                      fixed, participant=participant)
+        lik = liks[0]
+    else:
+        lik = Likelihood(model, who, trials)
+        fit = fit_participant(lik, names, fixed, participant=participant)
     if lik.unknown:
         fit.notes.append(f"{lik.unknown} answer(s) that are not an option of their question "
                          "left out")
