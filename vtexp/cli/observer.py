@@ -109,7 +109,10 @@ def _print(res, names: list[str]) -> None:
     out(f"\npopulation ({len(res.fits)} participant(s)); in {res.seconds:.1f} s:")
     for n in names:
         used = pop.used.get(n, 0)
-        if n in pop.values:
+        if n == "rating_bias" and used:
+            out(f"  {n}: centred on no bias (as the model draws it){_spread_text(n, pop.spreads)} "
+                f"(from the {used} participant(s) whose data identify it)")
+        elif n in pop.values:
             spread = _spread_text(n, pop.spreads)
             out(f"  {n}: {pop.values[n]:.4g}{spread} (from the {used} participant(s) whose "
                 "data identify it)")
