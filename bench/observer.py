@@ -8,8 +8,10 @@ model responder logs). Each participant draws their own efficiency, decision noi
 lapse and rating bias from the default population (``protocols/observers/default.yaml``);
 their percept parameters (two-point threshold, integration time, intensity levels) are
 the population's typical ones, which is what the fit holds fixed: the fitted model is
-the model that made the data. Each participant is fitted back
-(``vtexp.observer.fit.fit_participant``, the parameters of ``--params``), and each pilot's
+the model that made the data. A percept parameter in ``--params`` (``integration_ms``,
+``two_point_threshold_mm``) varies between participants as the default population
+draws it (in 5 bins), and is fitted on its grid of percepts. Each participant is fitted back
+(``vtexp observer fit``'s own path, the parameters of ``--params``), and each pilot's
 population (``vtexp.observer.fit.population``). Reported per study and parameter:
 
 - identified: the share of participants whose profile is not flat from bound to bound;
@@ -46,8 +48,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vtexp.observer.fit import PARAMS, fit_participant, population  # noqa: E402
-from vtexp.observer.likelihood import Likelihood, Trial, decision_values  # noqa: E402
+from vtexp.observer.fit import PERCEPT_PARAMS, _fit_one, population, spec_of  # noqa: E402
+from vtexp.observer.likelihood import Likelihood, Trial, decision_values  # noqa: E402,F401
 from vtexp.observer.model import question_columns  # noqa: E402
 from vtexp.simulate import Setup, simulate_participant  # noqa: E402
 
@@ -57,10 +59,16 @@ SEED = 20261127
 _SETUPS: dict[str, Setup] = {}
 
 
-def setup_of(study: str) -> Setup:
-    if study not in _SETUPS:
-        _SETUPS[study] = Setup.load(ROOT / "experiments" / f"{study}.yaml", overrides=SAME_SKIN)
-    return _SETUPS[study]
+def setup_of(study: str, names: tuple = ()) -> Setup:
+    """The study's model; its participants' percepts all typical, except the percept
+    parameter being fitted (``names``), which varies as the default population has it."""
+    key = (study, tuple(n for n in names if n in PERCEPT_PARAMS))
+    if key not in _SETUPS:
+        varied = {PERCEPT_PARAMS[n].spread for n in key[1]}
+        spread = {k: v for k, v in SAME_SKIN["population"].items() if k not in varied}
+        _SETUPS[key] = Setup.load(ROOT / "experiments" / f"{study}.yaml",
+                                  overrides={"population": spread})
+    return _SETUPS[key]
 
 
 def trials_of(setup: Setup, rows: list[dict]) -> list[Trial]:
@@ -81,18 +89,17 @@ def truth_of(who, name: str) -> float:
 def fit_one(args) -> tuple[list[dict], object]:
     """Participant ``i`` of pilot ``d``: simulated, fitted back; their rows and fit."""
     study, d, i, names = args
-    from threadpoolctl import threadpool_limits
-    with threadpool_limits(limits=1, user_api="blas"):
-        setup = setup_of(study)
-        m = setup.model
-        fixed = decision_values(m)
-        skin = m.participant(0, "fit", typical=True)
-        pid = f"d{d}p{i + 1}"
-        who = m.participant(SEED, pid)
-        t0 = time.perf_counter()
-        lik = Likelihood(m, skin, trials_of(setup, simulate_participant(setup, SEED, pid)))
-        f = fit_participant(lik, names, fixed, participant=pid)
-        dt = time.perf_counter() - t0
+    setup = setup_of(study, tuple(names))
+    m = setup.model
+    fixed = decision_values(m)
+    skin = m.participant(0, "fit", typical=True)
+    pid = f"d{d}p{i + 1}"
+    who = m.participant(SEED, pid)
+    t0 = time.perf_counter()
+    # vtexp observer fit's own path (a percept parameter on its grid of percepts)
+    f = _fit_one((m, skin, trials_of(setup, simulate_participant(setup, SEED, pid)), names,
+                  fixed, pid))
+    dt = time.perf_counter() - t0
     rows = []
     for name in names:
         p = f.params[name]
@@ -143,7 +150,7 @@ def summarise(rows: list[dict], pops: list[dict], names: list[str], study: str) 
     out = []
     for name in names:
         rs = [r for r in rows if r["study"] == study and r["param"] == name]
-        spec = PARAMS[name]
+        spec = spec_of(name)
         ident = [r for r in rs if r["identified"]]
 
         def err(r):
@@ -188,7 +195,7 @@ def main() -> None:
     t_all = time.perf_counter()
     results, summary, timing = [], [], []
     for study in studies:
-        setup = setup_of(study)
+        setup = setup_of(study, tuple(names))
         base = eval_baseline(study)
         # One pilot in one process; the same pilot's participants over the workers, as
         # vtexp observer fit --workers fits them (fresh processes: their start and the
@@ -208,6 +215,9 @@ def main() -> None:
         pilots = [one, *rest]
         params = setup.model.params
         true_centre = {n: float(getattr(params, n)) for n in names if hasattr(params, n)}
+        if "two_point_threshold_mm" in names:
+            true_centre["two_point_threshold_mm"] = params.two_point_threshold_mm[
+                setup.model.site]
         pops = [{"study": study, "population": p["population"], "true_centre": true_centre}
                 for p in pilots]
         rows = [r for p in pilots for r in p["rows"]]

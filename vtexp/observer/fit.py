@@ -164,13 +164,15 @@ class ParticipantFit:
 
 def fit_participant(lik: Likelihood, names: list[str], fixed: dict[str, float], *,
                     participant: str = "", starts: int = 3,
-                    profiles: bool = True) -> ParticipantFit:
+                    profiles: bool = True, cut: float | None = None) -> ParticipantFit:
     """Maximum likelihood over ``names`` (the others at ``fixed``), with profile intervals.
 
     The search is L-BFGS-B within each parameter's bounds, on the log scale for
     positive scale parameters, from ``starts`` starting points (the fixed values
     and points spread over the bounds); the best is kept. ``profiles=False``: the
-    maximum only (every interval is then the whole range).
+    maximum only (every interval is then the whole range). ``cut``: the log-likelihood
+    at the intervals' edges (default: this maximum less HALF_CHI2), for a fit that is
+    one slice of a larger one (:func:`fit_percept_participant`).
     """
     t0 = time.perf_counter()
     specs = [PARAMS[n] for n in names]
@@ -221,10 +223,11 @@ def fit_participant(lik: Likelihood, names: list[str], fixed: dict[str, float], 
         return ParticipantFit(participant, lik.n, -nll_hat, out, time.perf_counter() - t0,
                               calls[0])
     for i, s in enumerate(specs):
-        low, high, better, grid, prof = _profile(nll, u_hat, nll_hat, i, bounds, modes)
+        target = None if cut is None else -cut
+        low, high, better, grid, prof = _profile(nll, u_hat, nll_hat, i, bounds, modes, target)
         if better is not None and better[1] < nll_hat - 1e-3:      # the profile found higher
             u_hat, nll_hat = better
-            low, high, _, grid, prof = _profile(nll, u_hat, nll_hat, i, bounds, modes)
+            low, high, _, grid, prof = _profile(nll, u_hat, nll_hat, i, bounds, modes, target)
         lo_b, hi_b = bounds[i]
         span = hi_b - lo_b
         flat = low <= lo_b + 1e-6 * span and high >= hi_b - 1e-6 * span
@@ -245,8 +248,10 @@ def fit_percept_participant(liks: list[Likelihood], name: str, values: list[floa
     the grid); between the grid's values the profile is a cubic spline (on the log
     scale), whose maximum is the estimate and whose drops by HALF_CHI2 are the
     interval's edges. The decision
-    parameters' estimates and intervals are those at the grid value nearest the estimate
-    (their intervals therefore do not include the percept's uncertainty).
+    parameters' estimates are those at the grid value nearest the estimate; their
+    intervals are the union, at this fit's cut, of their intervals at every grid value
+    whose profile reaches the cut (so they include the percept's uncertainty, to within
+    the grid's spacing).
     """
     t0 = time.perf_counter()
     spec = PERCEPT_PARAMS[name]
@@ -280,11 +285,29 @@ def fit_percept_participant(liks: list[Likelihood], name: str, values: list[floa
     low, high = edge(-1), edge(1)
     flat = low <= u[0] + 1e-9 and high >= u[-1] - 1e-9
     near = int(np.argmin(np.abs(u - u_hat)))
+    params: dict[str, ParameterFit] = {}
     if names:
-        rest = fit_participant(liks[near], names, fixed, participant=participant)
-        params, evals = dict(rest.params), evals + rest.evaluations
-    else:
-        params = {}
+        # The decision parameters' intervals cover the percept's uncertainty: the union of
+        # their intervals, at the whole fit's cut, over every grid value of the percept
+        # whose profile reaches that cut; their profiles the pointwise maximum.
+        slices = sorted({near, *np.flatnonzero(ll >= cut - 1e-9).tolist()})
+        fits = {k: fit_participant(liks[k], names, fixed, participant=participant,
+                                   cut=cut) for k in slices}
+        evals += sum(f.evaluations for f in fits.values())
+        for n in names:
+            est = fits[near].params[n]
+            sp = spec_of(n)
+            lows = [f.params[n].low for f in fits.values()]
+            highs = [f.params[n].high for f in fits.values()]
+            lo_n, hi_n = min(lows), max(highs)
+            lo_u, hi_u = sp.bounds_u
+            tol = 1e-6 * (hi_u - lo_u)
+            flat_n = sp.to_u(lo_n) <= lo_u + tol and sp.to_u(hi_n) >= hi_u - tol
+            prof = np.max([np.array(f.params[n].profile) + f.loglik for f in fits.values()],
+                          axis=0)
+            params[n] = ParameterFit(n, None if flat_n else est.estimate, lo_n, hi_n,
+                                     not flat_n, est.grid, [float(x) for x in
+                                                            prof - max(prof.max(), ll_hat)])
     params = {name: ParameterFit(name, None if flat else spec.from_u(u_hat), spec.from_u(low),
                                  spec.from_u(high), not flat, [float(v) for v in values],
                                  [float(x) for x in ll - ll.max()]), **params}
@@ -309,7 +332,7 @@ TAU_MIN = 0.02
 PROFILE_POINTS = 17
 
 
-def _profile(nll, u_hat, nll_hat, i, bounds, modes=()):
+def _profile(nll, u_hat, nll_hat, i, bounds, modes=(), target=None):
     """The profile of parameter ``i`` on a grid over its range, and its 95 % interval.
 
     The grid is walked out from the estimate each way, each point's other parameters
@@ -321,8 +344,10 @@ def _profile(nll, u_hat, nll_hat, i, bounds, modes=()):
 
     Returns (low, high, better, grid, profile): ``better`` the best point met (a higher
     maximum than ``u_hat`` if the profile found one), ``profile`` the log-likelihood
-    less the maximum at each grid point (search scale).
+    less the maximum at each grid point (search scale). ``target``: the negative
+    log-likelihood at the edges, if not ``nll_hat + HALF_CHI2``.
     """
+    target = nll_hat + HALF_CHI2 if target is None else target
     others = [j for j in range(len(u_hat)) if j != i]
     better: list = [None]
     lo_b, hi_b = bounds[i]
@@ -370,19 +395,19 @@ def _profile(nll, u_hat, nll_hat, i, bounds, modes=()):
     for idx in (right, left):          # outward from the estimate, each way
         for k in idx:
             values[k] = prof_at(float(grid[k]))
-    drop = values - nll_hat - HALF_CHI2                       # > 0: outside the interval
+    drop = values - target                                    # > 0: outside the interval
 
     def edge(direction: int) -> float:
         xs = [float(u_hat[i])] + [float(g) for g in (grid[right] if direction > 0
                                                        else grid[left])]
-        ds = [-HALF_CHI2] + [float(d) for d in (drop[right] if direction > 0
+        ds = [nll_hat - target] + [float(d) for d in (drop[right] if direction > 0
                                                 else drop[left])]
         for (x0, d0), (x1, d1) in zip(zip(xs, ds), zip(xs[1:], ds[1:])):
             if d1 > 0:
                 a, b = sorted((x0, x1))
                 if d0 > 0:
                     return x0
-                return brentq(lambda x: prof_at(x) - nll_hat - HALF_CHI2, a, b,
+                return brentq(lambda x: prof_at(x) - target, a, b,
                               xtol=span * 1e-3)
         return hi_b if direction > 0 else lo_b
 
