@@ -13,8 +13,13 @@ estimate is reported. The participants' estimates make the population
 :func:`~vtexp.observer.params.draw_participant` draws from, written as an
 observer file (:func:`observer_yaml`) that ``vtexp simulate --observer`` takes.
 
+A percept parameter (integration time, two-point threshold) changes the percept
+itself: it is fitted on a grid of percepts (:func:`fit_percept_participant`), computed
+once per fit and shared by its participants.
+
 The percept of a trial is that of what the device reported playing (its device
-events, the first play), never the plan's schedule.
+events, the first play, which is what the model participant feels in a session),
+never the plan's schedule.
 """
 
 from __future__ import annotations
