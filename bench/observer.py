@@ -116,7 +116,7 @@ def pilot(args) -> dict:
     """One simulated pilot: its participants fitted back, and its population."""
     study, d, n, names = args
     got = [fit_one((study, d, i, names)) for i in range(n)]
-    pop = population([f for _, f in got], names)
+    pop = population([f for _, f in got], names, setup_of(study, tuple(names)).model.params)
     return {"rows": [r for rows, _ in got for r in rows], "population": pop.values,
             "spreads": pop.spreads}
 

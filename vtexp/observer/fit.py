@@ -329,6 +329,9 @@ _SPREAD_MAX = {"efficiency_cv": 3.0, "decision_noise_cv": 3.0, "lapse_logit_sd":
                "integration_cv": 2.0, "two_point_threshold_cv": 2.0,
                "rating_bias_sd": 5.0}
 
+#: Gauss-Hermite points of a population's marginal likelihood.
+GH_POINTS = 48
+
 #: The smallest spread a population fit considers (on the scale the parameter varies on).
 TAU_MIN = 0.02
 
@@ -576,7 +579,20 @@ class Population:
     notes: list[str]
 
 
-def population(fits: list[ParticipantFit], names: list[str]) -> Population:
+def _base_tau(name: str, base) -> float | None:
+    """The observer file's spread of ``name`` on the scale the population varies on."""
+    if base is None:
+        return None
+    pop = base.population
+    cv = {"efficiency": pop.efficiency_cv, "decision_noise": pop.decision_noise_cv,
+          "integration_ms": pop.integration_cv,
+          "two_point_threshold_mm": pop.two_point_threshold_cv}.get(name)
+    if cv is not None:
+        return math.sqrt(math.log1p(cv * cv))
+    return {"lapse": pop.lapse_logit_sd, "rating_bias": pop.rating_bias_sd}.get(name)
+
+
+def population(fits: list[ParticipantFit], names: list[str], base=None) -> Population:
     """The population of :func:`~vtexp.observer.params.draw_participant` that makes the
     participants' answers most likely.
 
@@ -591,7 +607,9 @@ def population(fits: list[ParticipantFit], names: list[str]) -> Population:
     parameter that is one value for everyone in the model (abstain criterion, rating
     step, turns SD) takes the value that maximises the sum of the profiles. With few
     participants ``tau`` is known poorly (and is biased low, as every maximum-likelihood
-    variance is).
+    variance is). When the participants cannot tell a spread from none, or only one
+    identifies the parameter, the spread stays the observer file's (``base``, an
+    :class:`~vtexp.observer.params.ObserverParams`) and the centre is fitted with it.
     """
     values, spreads, used, notes = {}, {}, {}, []
     for n in names:
@@ -609,24 +627,30 @@ def population(fits: list[ParticipantFit], names: list[str]) -> Population:
         if spec.spread is None:
             values[n] = float(x[int(np.argmax(L.sum(axis=0)))])
             continue
-        if n == "lapse":
-            t = np.log(np.clip(x, 1e-4, None) / (1 - x))
-            jac = 1 / np.clip(x * (1 - x), 1e-4 * (1 - 1e-4), None)
+        grids = [np.array([spec.to_u(g) for g in p.grid]) for p in ps]
+        profs = [np.array(p.profile) for p in ps]
+        z, w = np.polynomial.hermite_e.hermegauss(GH_POINTS)
+        w = w / w.sum()
+        if n == "lapse":        # the scale the population varies on, and back
+            t = np.log(np.clip(x, 1e-4, None) / (1 - np.clip(x, None, 1 - 1e-4)))
+            to_x = lambda tt: 1 / (1 + np.exp(-tt))                     # noqa: E731
         else:
-            t, jac = (u, np.ones_like(u))
-        du = u[1] - u[0]
-        lik = np.exp(L)                                                  # (participants, u)
+            t = u
+            to_x = (lambda tt: np.exp(tt)) if spec.log else (lambda tt: tt)  # noqa: E731
 
-        def neg_marginal(theta, t=t, jac=jac, lik=lik, du=du, centred=(n == "rating_bias")):
+        def neg_marginal(theta, centred=(n == "rating_bias"), to_x=to_x, grids=grids,
+                         profs=profs, lo=lo_u, hi=hi_u, z=z, w=w):
+            # Gauss-Hermite over the population's normal: exact for any spread however
+            # narrow, where a fixed grid over the range misses a narrow one.
             mu = 0.0 if centred else theta[0]
             tau = math.exp(theta[-1])
-            dens = np.exp(-0.5 * ((t - mu) / tau) ** 2) / (tau * math.sqrt(2 * math.pi)) * jac
-            m = (lik * dens).sum(axis=1) * du
-            return -float(np.log(np.maximum(m, 1e-300)).sum())
-        best_i = np.argmax(L, axis=1)
-        t_hat = t[best_i]
+            xs = to_x(mu + tau * z)
+            us = np.clip(np.log(xs) if spec.log else xs, lo, hi)
+            total = 0.0
+            for g, pr in zip(grids, profs, strict=True):
+                total += math.log(max(float(w @ np.exp(np.interp(us, g, pr))), 1e-300))
+            return -total
         centred = n == "rating_bias"
-        tau0 = math.log(max(float(np.std(t_hat)), 0.1))
         tau_lo = math.log(TAU_MIN)
         tau_hi = math.log(max(float(t.max() - t.min()), 0.1))
         # A lapse rate's centre stays above 0.1 %: below it the logit scale has endless room
@@ -636,17 +660,22 @@ def population(fits: list[ParticipantFit], names: list[str]) -> Population:
         def fit_mu_tau(fixed_tau=None):
             if centred and fixed_tau is not None:
                 return neg_marginal([math.log(fixed_tau)]), 0.0, fixed_tau
+            # Start from the best of a scan: with a small spread the marginal likelihood
+            # is as narrow and many-peaked in the centre as the profiles it integrates.
+            mus = np.linspace(t_min, float(t.max()), 41)
+            taus = np.linspace(tau_lo, tau_hi, 9)
             if fixed_tau is not None:
-                f = lambda th: neg_marginal([th[0], math.log(fixed_tau)])   # noqa: E731
-                starts, bnds = [[float(np.mean(t_hat))], [float(np.median(t_hat))]], \
-                    [(t_min, float(t.max()))]
+                def f(th):
+                    return neg_marginal([th[0], math.log(fixed_tau)])
+                starts = [[min(mus, key=lambda m: f([m]))]]
+                bnds = [(t_min, float(t.max()))]
             elif centred:
-                f, starts, bnds = neg_marginal, [[tau0]], [(tau_lo, tau_hi)]
+                f, bnds = neg_marginal, [(tau_lo, tau_hi)]
+                starts = [[min(taus, key=lambda a: f([a]))]]
             else:
-                f = neg_marginal
-                starts = [[max(float(np.mean(t_hat)), t_min), tau0],
-                          [max(float(np.median(t_hat)), t_min), math.log(0.3)]]
-                bnds = [(t_min, float(t.max())), (tau_lo, tau_hi)]
+                f, bnds = neg_marginal, [(t_min, float(t.max())), (tau_lo, tau_hi)]
+                starts = [list(min(((m, a) for m in mus for a in taus),
+                                   key=lambda th: f(list(th))))]
             r = min((minimize(f, s0, method="L-BFGS-B", bounds=bnds) for s0 in starts),
                     key=lambda r: r.fun)
             mu = 0.0 if centred else float(r.x[0])
@@ -654,18 +683,24 @@ def population(fits: list[ParticipantFit], names: list[str]) -> Population:
             return float(r.fun), mu, tau
 
         best, mu, tau = fit_mu_tau()
+        # The spread is identified only if no spread at all is unlikely (likelihood ratio);
+        # otherwise the centre is the one that goes with the observer file's spread.
+        keep = None
+        if len(ps) < 2:
+            keep = f"{n}: one participant identifies it; its spread is the observer file's"
+        elif fit_mu_tau(TAU_MIN)[0] - best < HALF_CHI2:
+            keep = (f"{n}: these participants do not tell a spread from none; its spread is "
+                    "the observer file's")
+        if keep is not None:
+            notes.append(keep)
+            base_tau = _base_tau(n, base)
+            if base_tau is not None and base_tau > 0:
+                _, mu, tau = fit_mu_tau(base_tau)
         if n == "lapse":
             values[n] = 1 / (1 + math.exp(-mu))
         elif not centred:
             values[n] = spec.from_u(mu)
-        if len(ps) < 2:
-            notes.append(f"{n}: one participant identifies it; its spread is the observer "
-                         "file's")
-            continue
-        # The spread is identified only if no spread at all is unlikely (likelihood ratio).
-        if fit_mu_tau(TAU_MIN)[0] - best < HALF_CHI2:
-            notes.append(f"{n}: these participants do not tell a spread from none; its "
-                         "spread is the observer file's")
+        if keep is not None:
             continue
         spread = math.sqrt(math.expm1(tau * tau)) if spec.log else tau
         if spread > _SPREAD_MAX.get(spec.spread, math.inf):
@@ -745,7 +780,8 @@ def fit_all(data: FitData, names: list[str], *, workers: int = 1) -> FitResult:
         notes.append(f"the experiment's observer.params sets {', '.join(overridden)}, which "
                      "overrides an observer file: vtexp simulate of this experiment keeps the "
                      "experiment's value")
-    return FitResult(model.lx.experiment.name, names, fits, population(fits, names),
+    return FitResult(model.lx.experiment.name, names, fits,
+                     population(fits, names, model.params),
                      time.perf_counter() - t0, notes)
 
 
