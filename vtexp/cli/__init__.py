@@ -9,6 +9,7 @@ module                 commands
 ``stats``              ``stats ...`` on any tidy table
 ``demo``               ``demo``
 ``simulate``           ``simulate``
+``observer``           ``observer fit``
 ``encode``             ``encode``
 ``device``             ``device list|check|monitor|emulate``
 ``live``               ``live`` (a camera felt live), ``live-replay``
@@ -33,11 +34,13 @@ import sys
 
 from .. import __version__
 from ..errors import VtexpError
-from . import analyze, demo, device, encode, experiment, firmware, live, run, simulate, stats
+from . import (analyze, demo, device, encode, experiment, firmware, live, observer, run,
+               simulate, stats)
 from ._io import err
 
 #: The command groups, in the order ``vtexp --help`` lists them.
-GROUPS = (experiment, run, analyze, stats, encode, live, device, firmware, demo, simulate)
+GROUPS = (experiment, run, analyze, stats, encode, live, device, firmware, demo, simulate,
+          observer)
 
 
 def build_parser() -> argparse.ArgumentParser:

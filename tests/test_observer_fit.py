@@ -1,0 +1,237 @@
+"""Fitting the model participant to answers: the likelihood, recovery of known parameters,
+identifiability, and ``vtexp observer fit`` on logged sessions."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from conftest import ROOT
+
+from vtexp.cli import main
+from vtexp.compile import compile_conditions
+from vtexp.devices.sim import SimDevice
+from vtexp.experiment import load_experiment
+from vtexp.observer import ModelObserver, ObserverModel
+from vtexp.observer.fit import fit_participant
+from vtexp.observer.likelihood import Likelihood, Trial, _answer_options, decision_values
+from vtexp.observer.model import question_columns
+from vtexp.observer.params import load_params
+from vtexp.session import SessionOptions, run_session
+from vtexp.simulate import Setup, simulate_participant
+
+GRID = ROOT / "experiments" / "duration_interval_grid.yaml"
+#: Participants who differ only in their decision parameters (the fit holds the percept's).
+SAME_SKIN = {"population": {"two_point_threshold_cv": 0.0, "integration_cv": 0.0,
+                            "intensity_levels_sd": 0.0}}
+
+
+def _trials(setup: Setup, rows: list[dict]) -> list[Trial]:
+    by_levels = {tuple(c.levels[f] for f in setup.factors): c for c in setup.conditions}
+    out = []
+    for r in rows:
+        c = by_levels[tuple(r[f] for f in setup.factors)]
+        out.append(Trial(r["question"], c, setup.played[c.index], r["answer"]))
+    return out
+
+
+@pytest.mark.parametrize("name", ["duration_interval_grid", "six_mode_ball", "whirlpool"])
+def test_the_probabilities_are_the_frequencies_of_the_model_s_answers(name):
+    """Choices with and without an abstain option, ratings and counts: what the likelihood
+    says of each answer is how often the model participant gives it (6,000 draws a
+    condition; at most 5 standard errors apart in the worst of every cell)."""
+    setup = Setup.load(ROOT / "experiments" / f"{name}.yaml")
+    m = setup.model
+    who = m.participant(0, "x", typical=True)
+    v = decision_values(m)
+    v.update(efficiency=who.efficiency, decision_noise=who.decision_noise, lapse=0.05)
+    who = dataclasses.replace(who, lapse=0.05, rating_bias=0.0)
+    conditions = list(zip(setup.conditions, setup.played, strict=True))[:6]
+    rng = np.random.default_rng(7)
+    n = 6000
+    for q in m.lx.experiment.asked():
+        lik = Likelihood(m, who, [Trial(q.name, c, p, _answer_options(q)[0])
+                                  for c, p in conditions])
+        P = lik.probabilities(v)[0]
+        opts = _answer_options(q)
+        for gi, (c, p) in enumerate(conditions):
+            got = m.answers(q, c, p, who, rng.random((n, question_columns(q))))
+            freq = np.array([sum(a == o for a in got) for o in opts]) / n
+            se = np.sqrt(np.maximum(P[gi] * (1 - P[gi]), 1e-4) / n)
+            assert np.all(np.abs(freq - P[gi]) < 5 * se + 2e-3), (q.name, c.levels, freq, P[gi])
+            assert P[gi].sum() == pytest.approx(1.0, abs=5e-3)
+
+
+def test_the_likelihood_is_smooth_and_the_same_at_every_call():
+    """Common random numbers: no Monte-Carlo jitter between neighbouring values."""
+    setup = Setup.load(GRID)
+    m = setup.model
+    who = m.participant(0, "x", typical=True)
+    lik = Likelihood(m, who, _trials(setup, simulate_participant(setup, 1, "P1")))
+    v = decision_values(m)
+    x = np.linspace(np.log(0.05), np.log(0.2), 21)
+    ll = np.array([lik({**v, "efficiency": float(np.exp(e))}) for e in x])
+    assert lik({**v, "efficiency": float(np.exp(x[3]))}) == ll[3]
+    second = np.abs(np.diff(ll, 2))
+    assert second.max() < 0.05 * (ll.max() - ll.min()) + 0.05
+
+
+def test_known_parameters_are_recovered_within_their_intervals():
+    """Three model participants of the duration/interval study (96 trials each) with
+    known efficiency and lapse, fitted back: both parameters identified, the truth
+    inside at least 5 of the 6 intervals."""
+    setup = Setup.load(GRID, overrides=SAME_SKIN)
+    m = setup.model
+    fixed = decision_values(m)
+    skin = m.participant(0, "fit", typical=True)
+    inside = 0
+    for pid in ("r1", "r2", "r3"):
+        who = m.participant(4, pid)
+        lik = Likelihood(m, skin, _trials(setup, simulate_participant(setup, 4, pid)))
+        f = fit_participant(lik, ["efficiency", "lapse"], fixed, participant=pid)
+        for name in ("efficiency", "lapse"):
+            p = f.params[name]
+            assert p.identified, (pid, name, p)
+            inside += p.low <= getattr(who, name) <= p.high
+    assert inside >= 5
+
+
+def test_the_integration_time_is_recovered_on_its_grid():
+    """The back's integration time, the parameter seed 001's 0.1 s collapse asks about: a
+    participant of the duration/interval study (two sessions) whose percept integrates
+    over 150 ms is fitted back from the default's 40 ms, within a finite interval."""
+    from vtexp.observer.fit import fit_percept_participant, percept_grid, with_percept
+    setup = Setup.load(GRID, overrides={"integration_ms": 150.0})
+    m = setup.model
+    rows = [r for ses in (1, 2)
+            for r in simulate_participant(setup, 5, "t1", session=ses, typical=True)]
+    who = m.participant(0, "fit", typical=True)
+    grid = percept_grid("integration_ms")
+    liks = [Likelihood(m, with_percept(who, "integration_ms", v), _trials(setup, rows))
+            for v in grid]
+    f = fit_percept_participant(liks, "integration_ms", grid, [], decision_values(m))
+    p = f.params["integration_ms"]
+    assert p.identified and p.low <= 150.0 <= p.high
+    assert p.low > grid[0] and p.high < grid[-1] and p.high / p.low < 3
+
+
+def test_a_parameter_the_answers_do_not_depend_on_is_not_identified(tmp_path):
+    """Every answer of the duration/interval study rendered as the same circle: the
+    percept cannot favour any answer, so efficiency changes nothing and is reported as
+    not identified, with no estimate."""
+    text = GRID.read_text(encoding="utf-8") + (
+        "\nobserver:\n  templates:\n    triangle: circle\n    square: circle\n"
+        "    rectangle: circle\n")
+    path = tmp_path / "same_templates.yaml"
+    path.write_text(text, encoding="utf-8")
+    setup = Setup.load(path, overrides=SAME_SKIN)
+    m = setup.model
+    lik = Likelihood(m, m.participant(0, "fit", typical=True),
+                     _trials(setup, simulate_participant(setup, 2, "u1")))
+    f = fit_participant(lik, ["efficiency"], decision_values(m), participant="u1")
+    p = f.params["efficiency"]
+    assert not p.identified and p.estimate is None
+    assert p.text() == "not identified"
+    assert max(p.profile) - min(p.profile) < 1e-6
+
+
+# --------------------------------------------------------------------------- the command
+
+@pytest.fixture(scope="module")
+def logged(tmp_path_factory):
+    """Sessions written as vtexp run writes them: two model participants of the
+    duration/interval study (whole), and two trials of another study."""
+    root = tmp_path_factory.mktemp("fitdata")
+    lx = load_experiment(GRID)
+    model = ObserverModel.for_experiment(lx)
+    conditions = compile_conditions(lx, model.profile)
+    for pid in ("sim1", "sim2"):
+        run_session(lx, SimDevice(model.profile), ModelObserver(model, pid, 1, seed=9),
+                    SessionOptions(participant=pid, data_dir=root / "grid",
+                                   conditions=conditions))
+    other = load_experiment(ROOT / "experiments" / "circle_vs_rectangle.yaml")
+    om = ObserverModel.for_experiment(other)
+    run_session(other, SimDevice(om.profile), ModelObserver(om, "sim1", 1, seed=9),
+                SessionOptions(participant="sim1", data_dir=root / "other",
+                               conditions=compile_conditions(other, om.profile),
+                               max_trials=2))
+    return root
+
+
+def test_the_command_fits_logged_sessions_and_writes_an_observer_file(logged, tmp_path,
+                                                                      capsys):
+    data = logged / "grid" / "duration_interval_grid"
+    out = tmp_path / "fitted.yaml"
+    assert main(["observer", "fit", str(data), "--params", "efficiency,lapse",
+                 "--out", str(out), "--json", str(tmp_path / "fit.json")]) == 0
+    text = capsys.readouterr().out
+    assert "sim1" in text and "sim2" in text and "efficiency [95% CI]" in text
+    params = load_params(out)                       # what vtexp simulate --observer reads
+    assert 1e-3 <= params.efficiency <= 1.0
+    assert out.read_text(encoding="utf-8").startswith("# Fitted by vtexp observer fit")
+    setup = Setup.load(GRID, params_file=out)
+    assert setup.model.params.efficiency == params.efficiency
+    assert main(["simulate", str(GRID), "--observer", str(out), "-n", "2", "-m", "2",
+                 "--workers", "1", "-q"]) == 0
+
+
+def test_the_percepts_come_from_the_device_events(logged, tmp_path):
+    """A trial's percept is what its device events say was played, not the plan: the
+    events as logged give the planned pulses; events moved 50 ms later give pulses 50 ms
+    later."""
+    import shutil
+
+    import pandas as pd
+
+    from vtexp.observer.fit import read_trials
+    setup = Setup.load(GRID)
+    plan = dict(enumerate(setup.played))
+    data = logged / "grid" / "duration_interval_grid"
+
+    def first_trial(folder):
+        t = next(t for t in read_trials([folder]).trials["sim1"])
+        return t, [(p.row, p.col, p.onset_ms, p.duration_ms) for p in t.played.pulses]
+
+    t, played = first_trial(data)
+    assert played == [(p.row, p.col, p.onset_ms, p.duration_ms)
+                      for p in plan[t.condition.index].pulses]
+    copy = tmp_path / "moved"
+    shutil.copytree(data, copy)
+    ev = next(copy.rglob("sub-sim1_*_events.tsv"))
+    df = pd.read_csv(ev, sep="\t", dtype=str, keep_default_na=False)
+    first = df["trial"] == "1"
+    df.loc[first, "onset_ms"] = (df.loc[first, "onset_ms"].astype(float) + 50).astype(str)
+    df.to_csv(ev, sep="\t", index=False)
+    t2, moved = first_trial(copy)
+    assert t2.condition.index == t.condition.index
+    assert moved == [(r, c, o + 50, d) for r, c, o, d in played]
+
+
+@pytest.mark.parametrize("case", ["unknown", "uninformed", "percept", "two-percepts", "mixed",
+                                  "no-events"])
+def test_bad_input_is_one_message(logged, tmp_path, capsys, case):
+    grid = logged / "grid" / "duration_interval_grid"
+    args = {"unknown": [str(grid), "--params", "efficiency,sharpness"],
+            "uninformed": [str(grid), "--params", "rating_step"],
+            "percept": [str(grid), "--params", "intensity_levels"],
+            "two-percepts": [str(grid), "--params", "integration_ms,two_point_threshold_mm"],
+            "mixed": [str(grid), str(logged / "other")],
+            "no-events": None}[case]
+    if case == "no-events":
+        import shutil
+        copy = tmp_path / "copy"
+        shutil.copytree(grid, copy)
+        for f in copy.rglob("*_events.tsv"):
+            f.unlink()
+        args = [str(copy)]
+    code = main(["observer", "fit", *args, "--out", str(tmp_path / "o.yaml")])
+    err = capsys.readouterr().err
+    errors = [ln for ln in err.splitlines() if ln.startswith("vtexp: error:")]
+    assert code == 2 and len(errors) == 1 and "Traceback" not in err
+    expect = {"unknown": "no parameter 'sharpness'", "uninformed": "asks no rating question",
+              "percept": "shapes the percept itself", "mixed": "different experiments",
+              "two-percepts": "fit one of them at a time",
+              "no-events": "no device events"}[case]
+    assert expect in errors[0]
+    assert not (tmp_path / "o.yaml").exists()
