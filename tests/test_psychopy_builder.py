@@ -463,7 +463,7 @@ class FakeClock:
 
 
 def test_the_runtime_plays_on_the_emulator_and_maps_onsets_to_the_given_clock():
-    arr = builder.TactileArray("emulator", PROFILE, name="arr")
+    arr = builder.TactileArray(f"emulator:{LINK}", PROFILE, name="arr")   # LINK: as above
     try:
         arr.open(say=lambda line: None)
         stim = builder.TactileStimulus(arr, "tactile", folder=EXAMPLE)

@@ -476,7 +476,10 @@ def test_link_settings_after_the_port_reach_the_device(emu, clock):
 
 
 @pytest.mark.parametrize("spec, says", [
-    ("serial:/dev/ttyACM0,heartbeat=500", "unknown serial option 'heartbeat=500'"),
+    ("serial:/dev/ttyACM0,heartbeat=500", "unknown link option 'heartbeat=500'"),
+    ("emulator:fast", "unknown emulator option 'fast'"),
+    ("emulator:virtual,lockstep=/tmp/clock", "unknown link option 'lockstep=/tmp/clock'"),
+    ("emulator:watchdog_ms=0", "watchdog_ms must be a whole number above 0"),
     ("serial:/dev/ttyACM0,watchdog_ms=0", "watchdog_ms must be a whole number above 0"),
     ("serial:/dev/ttyACM0,baud=fast", "baud must be a whole number above 0"),
     ("serial:/dev/ttyACM0,timing=soon", "timing must be device or host"),
@@ -486,6 +489,23 @@ def test_a_wrong_link_setting_is_named(spec, says):
     from vtexp.errors import InputError
     with pytest.raises(InputError, match=says):
         open_device(spec, VEST)
+
+
+def test_the_emulator_takes_the_link_settings_and_suggests_itself():
+    """``emulator:watchdog_ms=1000`` (and ``emulator:virtual,...``) set the link as a
+    port's settings do; a longer watchdog is suggested as an emulator spec, which works
+    as printed (the pty an emulator serves is gone when the program ends)."""
+    dev = open_device("emulator:watchdog_ms=1000", VEST)
+    assert (dev.heartbeat_ms, dev.watchdog_ms, dev.clock.virtual) == (200, 1000, False)
+    assert dev._spec_with_watchdog(2000) == "emulator:watchdog_ms=2000"
+    dev = open_device("emulator:virtual,heartbeat_ms=100", VEST)
+    assert (dev.heartbeat_ms, dev.watchdog_ms, dev.clock.virtual) == (100, 100, True)
+    assert dev._spec_with_watchdog(400) == "emulator:virtual,heartbeat_ms=100,watchdog_ms=400"
+    again = open_device(dev._spec_with_watchdog(400), VEST)
+    assert (again.heartbeat_ms, again.watchdog_ms, again.clock.virtual) == (100, 400, True)
+    with open_device("emulator:virtual,watchdog_ms=700", VEST) as dev:
+        assert dev.info().details["watchdog_ms"] == 700
+        assert dev.emulator.firmware.watchdog_ms == 700
 
 
 def test_a_play_the_watchdog_stopped_keeps_the_onsets_it_played(emu, clock):

@@ -16,7 +16,9 @@ Specs for :func:`open_device` (and ``--device`` on the command line):
   ``emulator:virtual``: the same emulated device in-process on a virtual clock
   (:class:`~vtexp.clock.VirtualClock`): the same bytes on the line, time passing as
   fast as the computer goes (a rehearsal of a whole study with a scripted or model
-  participant in seconds; not for a person, who would feel nothing in time).
+  participant in seconds; not for a person, who would feel nothing in time). The
+  serial link settings follow as for a port: ``emulator:watchdog_ms=1000``,
+  ``emulator:virtual,heartbeat_ms=100`` (not ``lockstep``).
 
 ``open_device(spec, profile, clock=...)`` gives the device a clock of the caller's
 (:mod:`vtexp.clock`; the real one by default).
@@ -43,15 +45,17 @@ SERIAL_OPTIONS = {"baud": "baudrate", "heartbeat_ms": "heartbeat_ms",
                   "timing": "timing", "lockstep": "clock"}
 
 
-def _serial_options(arg: str) -> tuple[str, dict[str, Any]]:
+def _serial_options(arg: str, example: str = "serial:/dev/ttyACM0,heartbeat_ms=500",
+                    keys: dict[str, str] = SERIAL_OPTIONS) -> tuple[str, dict[str, Any]]:
     port, *items = arg.split(",")
     options: dict[str, Any] = {}
     for item in items:
         key, sep, value = item.partition("=")
-        if not sep or key not in SERIAL_OPTIONS:
-            raise InputError(f"unknown serial option {item!r}; after the port: "
-                             + ", ".join(f"{k}=..." for k in SERIAL_OPTIONS)
-                             + " (e.g. serial:/dev/ttyACM0,heartbeat_ms=500)", key="--device")
+        if not sep or key not in keys:
+            raise InputError(f"unknown link option {item!r}; after the "
+                             f"{'port' if example.startswith('serial') else 'emulator'}: "
+                             + ", ".join(f"{k}=..." for k in keys)
+                             + f" (e.g. {example})", key="--device")
         if key == "timing":
             if value not in ("device", "host"):
                 raise InputError(f"timing must be device or host (got {value!r})",
@@ -91,15 +95,21 @@ def open_device(spec: str, profile: DeviceProfile, **options: Any) -> DeviceBase
         port, from_spec = _serial_options(arg)
         return SerialDevice(profile, port, **{**options, **from_spec})
     if kind == "emulator":
-        if arg not in ("", "virtual"):
-            raise InputError(f"unknown emulator option {arg!r}; use 'emulator' or "
-                             "'emulator:virtual' (to drive an emulator started with 'vtexp "
-                             "device emulate', use serial:PORT)", key="--device")
+        mode = arg.split(",")[0]
+        if "=" in mode:                          # link settings only: emulator:watchdog_ms=..
+            mode, arg = "", "," + arg
+        if mode not in ("", "virtual"):
+            raise InputError(f"unknown emulator option {mode!r}; use 'emulator' or "
+                             "'emulator:virtual', and link settings after them "
+                             "(emulator:watchdog_ms=1000); to drive an emulator started with "
+                             "'vtexp device emulate', use serial:PORT", key="--device")
+        link = {k: v for k, v in SERIAL_OPTIONS.items() if k != "lockstep"}
+        _, from_spec = _serial_options(arg, "emulator:watchdog_ms=1000", link)
         from .serial_device import EmulatedDevice
-        if arg == "virtual" and "clock" not in options:
+        if mode == "virtual" and "clock" not in options:
             from ..clock import VirtualClock
             options["clock"] = VirtualClock()
-        return EmulatedDevice(profile, **options)
+        return EmulatedDevice(profile, **{**options, **from_spec})
     raise InputError(f"unknown device {spec!r}; available: {', '.join(BACKENDS)}",
                      key="--device")
 

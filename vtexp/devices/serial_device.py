@@ -864,6 +864,12 @@ class EmulatedDevice(SerialDevice):
         self._faults = faults
         self._emulator_options = emulator_options or {}
 
+    def _spec_with_watchdog(self, watchdog_ms: int) -> str:
+        """``emulator`` (``emulator:virtual``) with the link settings the serial device's
+        spec would carry: the pty it serves is gone when the program ends."""
+        settings = super()._spec_with_watchdog(watchdog_ms).split(",")[1:]
+        return "emulator:" + ",".join((["virtual"] if self.clock.virtual else []) + settings)
+
     def _open(self) -> DeviceInfo:
         from .emulator import LoopbackEmulator, PtyEmulator
 
