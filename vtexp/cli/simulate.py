@@ -370,8 +370,9 @@ def _n_runs(args, runs, workers, executor, centre) -> list[dict]:
                          "smallest_n": None if n == inf else n})
             ns[_run_label(r)] = n
         lo, hi = min(ns.values()), max(ns.values())
-        print(f"  {c['effect']:<58} N = {text(ns['centre'])} at the centre; "
-              f"{text(lo)} .. {text(hi)} over the intervals")
+        at = text(ns["centre"])
+        print(f"  {c['effect']:<58} N {at if at.startswith('>') else '= ' + at} at the "
+              f"centre; {text(lo)} .. {text(hi)} over the intervals")
         print("      " + "; ".join(f"{k}: {text(v)}" for k, v in ns.items() if k != "centre"))
         rows.append({"effect": c["effect"],
                      "centre": None if ns["centre"] == inf else ns["centre"],
