@@ -295,8 +295,13 @@ def _fitted(args, lx):
         return [], []
     from ..observer.model import ObserverModel
     from ..simulate import fitted_runs
-    site = ObserverModel.for_experiment(lx, params_file=args.observer).site
-    return fitted_runs(args.observer, site)
+    model = ObserverModel.for_experiment(lx, params_file=args.observer)
+    runs, unknown = fitted_runs(args.observer, model.site)
+    held = sorted({r.param for r in runs if r.param in model.spec.params})
+    if held:
+        print(f"  {', '.join(held)}: set by the experiment's observer.params, which overrides "
+              "the observer file; left out of the range", file=sys.stderr)
+    return [r for r in runs if r.param not in held], unknown
 
 
 def _run_label(r) -> str:
