@@ -110,3 +110,19 @@ def test_bad_section_values_are_one_message_naming_the_file_and_key(tmp_path, ca
     errors = [ln for ln in err.splitlines() if ln.startswith("vtexp: error:")]
     assert code == 2 and len(errors) == 1 and "Traceback" not in err, err
     assert str(f) in errors[0] and f"{key}:" in errors[0] and words in errors[0]
+
+
+def test_a_parameter_the_experiment_sets_is_left_out_of_the_range(tmp_path, capsys):
+    """The experiment's observer.params overrides the observer file, in the centre's run
+    too: varying that parameter over the file's interval would not be the centre's model."""
+    text = CVR.read_text(encoding="utf-8").replace(
+        "observer:\n", "observer:\n  params: {efficiency: 0.2}\n", 1)
+    exp = tmp_path / "cvr.yaml"
+    exp.write_text(text, encoding="utf-8")
+    f = _observer(tmp_path, SECTION)
+    assert main(["simulate", str(exp), "--observer", str(f), "-n", "2", "-m", "2",
+                 "--workers", "1", "-q"]) == 0
+    cap = capsys.readouterr()
+    assert "efficiency: set by the experiment's observer.params" in cap.err
+    assert "1 more run of 2 studies" in cap.err and "lapse = 0.2 (high)" in cap.out
+    assert "efficiency = 0.03" not in cap.out

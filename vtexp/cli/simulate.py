@@ -313,7 +313,8 @@ def _power_runs(args, runs, workers, executor, centre):
     from ..simulate import power_range, run_power
     params = sorted({r.param for r in runs})
     print(f"\nPower over the fitted parameters' 95 % intervals ({', '.join(params)}): "
-          f"{len(runs)} more runs of {args.studies} studies ({len(runs) * args.studies} "
+          f"{len(runs)} more run{'' if len(runs) == 1 else 's'} of {args.studies} studies "
+          f"({len(runs) * args.studies} "
           f"studies more; {len(runs) + 1} times the centre's cost in all)...", file=sys.stderr)
     out = []
     for r in runs:
