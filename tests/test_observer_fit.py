@@ -4,6 +4,7 @@ identifiability, and ``vtexp observer fit`` on logged sessions."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -172,8 +173,32 @@ def test_the_command_fits_logged_sessions_and_writes_an_observer_file(logged, tm
     assert out.read_text(encoding="utf-8").startswith("# Fitted by vtexp observer fit")
     setup = Setup.load(GRID, params_file=out)
     assert setup.model.params.efficiency == params.efficiency
+    # what was fitted, machine-readable: each identified centre in its 95 % interval
+    fitted = params.fitted
+    assert fitted is not None and fitted.participants == 2
+    assert set(fitted.params) | set(fitted.not_identified) == {"efficiency", "lapse"}
+    assert "efficiency" in fitted.params
+    e = fitted.params["efficiency"]
+    assert e.centre == pytest.approx(params.efficiency)
+    assert e.low < e.centre < e.high
+    for name, v in fitted.params.items():
+        assert v.low <= v.centre <= v.high and v.centre == pytest.approx(getattr(params, name))
+    doc = json.loads((tmp_path / "fit.json").read_text(encoding="utf-8"))
+    assert doc["population"]["intervals"]["efficiency"] == pytest.approx([e.low, e.high],
+                                                                         rel=1e-5)
+    # vtexp simulate reports the power at the centre and its range over the intervals
+    runs = sum((v.low != v.centre) + (v.high != v.centre) for v in fitted.params.values())
     assert main(["simulate", str(GRID), "--observer", str(out), "-n", "2", "-m", "2",
-                 "--workers", "1", "-q"]) == 0
+                 "--workers", "1", "-q", "--json", str(tmp_path / "sim.json")]) == 0
+    cap = capsys.readouterr()
+    assert f"{runs} more runs of 2 studies" in cap.err
+    assert "over the fitted parameters' 95 % intervals" in cap.out
+    sim = json.loads((tmp_path / "sim.json").read_text(encoding="utf-8"))
+    rng = sim["power_range"]
+    assert len(rng["runs"]) == runs and len(rng["effects"]) == len(sim["power"])
+    for r in rng["effects"]:
+        assert r["low"] <= r["centre"] <= r["high"]
+        assert f"{r['centre']:6.3f}  {r['low']:.3f} .. {r['high']:.3f}" in cap.out
 
 
 def test_the_percepts_come_from_the_device_events(logged, tmp_path):

@@ -559,6 +559,64 @@ def run_power(path: Path | str, n: int, studies: int, *, alpha: float = 0.05, se
     return PowerResult(n, studies, alpha, table, mdf, time.perf_counter() - t0)
 
 
+@dataclass(frozen=True)
+class FittedRun:
+    """One run of the power range: a fitted parameter at one end of its interval."""
+
+    param: str
+    end: str                 # "low" or "high"
+    value: float
+    centre: float
+    overrides: dict
+
+
+def fitted_runs(params_file, site: str | None = None) -> tuple[list[FittedRun], list[str]]:
+    """The runs over an observer file's fitted intervals (its ``fitted:`` section, which
+    ``vtexp observer fit`` writes), and the parameters it says were not identified.
+
+    Each fitted parameter is set to its interval's low end, then its high end, the
+    others staying at the file's values (the centre): two runs per parameter, fewer
+    where an end is the centre itself. No section: no runs. ``site``: the body site
+    a fitted two-point threshold is of, when the section does not say.
+    """
+    from .observer.params import load_params
+    if params_file is None or stated_kind(params_file):
+        return [], []
+    fitted = load_params(params_file).fitted
+    if fitted is None:
+        return [], []
+    runs = []
+    for name, v in fitted.params.items():
+        for end in ("low", "high"):
+            x = getattr(v, end)
+            if x == v.centre:
+                continue
+            if name == "two_point_threshold_mm":
+                where = fitted.site or site
+                if where is None:
+                    continue
+                over = {name: {where: x}}
+            else:
+                over = {name: x}
+            runs.append(FittedRun(name, end, x, v.centre, over))
+    return runs, list(fitted.not_identified)
+
+
+def power_range(centre: pd.DataFrame, runs: list[tuple[FittedRun, pd.DataFrame]],
+                column: str = "power") -> pd.DataFrame:
+    """Each effect's ``column`` at the centre and its range (min, max) over the centre
+    and ``runs`` (each a fitted parameter at an end of its interval)."""
+    rows = []
+    for _, r in centre.iterrows():
+        vals = [r[column]] + [t.set_index("effect")[column].get(r["effect"], float("nan"))
+                              for _, t in runs]
+        vals = [v for v in vals if v == v]
+        rows.append({"effect": r["effect"], "centre": r[column],
+                     "low": min(vals) if vals else float("nan"),
+                     "high": max(vals) if vals else float("nan")})
+    return pd.DataFrame(rows, columns=["effect", "centre", "low", "high"])
+
+
 def smallest_n(path: Path | str, target: float, studies: int, *, alpha: float = 0.05,
                seed: int = 0, n_max: int = 200, workers: int | None = None,
                params_file=None, overrides: dict | None = None, on_step=None,

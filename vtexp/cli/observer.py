@@ -89,6 +89,9 @@ def cmd_fit(args) -> int:
                "population": {"values": res.population.values,
                               "spreads": res.population.spreads,
                               "participants": res.population.used,
+                              "intervals": {k: list(v) for k, v in
+                                            res.population.intervals.items()},
+                              "not_identified": res.population.not_identified,
                               "notes": res.population.notes}}
         Path(args.json).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
         print(f"wrote {args.json}", file=sys.stderr)
@@ -106,7 +109,8 @@ def _print(res, names: list[str]) -> None:
         for t in f.notes:
             out(f"{'':<{w}}   {t}")
     pop = res.population
-    out(f"\npopulation ({len(res.fits)} participant(s)); in {res.seconds:.1f} s:")
+    out(f"\npopulation ({len(res.fits)} participant(s); centre [95% profile-likelihood "
+        f"interval]); in {res.seconds:.1f} s:")
     for n in names:
         used = pop.used.get(n, 0)
         if n == "rating_bias" and used:
@@ -114,8 +118,10 @@ def _print(res, names: list[str]) -> None:
                 f"(from the {used} participant(s) whose data identify it)")
         elif n in pop.values:
             spread = _spread_text(n, pop.spreads)
-            out(f"  {n}: {pop.values[n]:.4g}{spread} (from the {used} participant(s) whose "
-                "data identify it)")
+            ci = pop.intervals.get(n)
+            ci = f" [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else " (centre not identified)"
+            out(f"  {n}: {pop.values[n]:.4g}{ci}{spread} (from the {used} participant(s) "
+                "whose data identify it)")
         else:
             out(f"  {n}: not identified by these data; the observer file keeps its value")
     for t in pop.notes:

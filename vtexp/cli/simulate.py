@@ -30,7 +30,9 @@ def register(sub) -> None:
                    help="give up the --target-power search above N (default 200)")
     s.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
     s.add_argument("--observer", metavar="FILE",
-                   help="observer parameters (default protocols/observers/default.yaml), or "
+                   help="observer parameters (default protocols/observers/default.yaml; a file "
+                        "vtexp observer fit wrote also gives power over the fitted "
+                        "parameters' 95 %% intervals, each at either end), or "
                         "a stated design (kind: stated): each participant's measure per "
                         "condition drawn from stated means, SDs and correlations, whose "
                         "power is known exactly (see --exact)")
@@ -213,6 +215,14 @@ def _one_n(args, lx, workers, executor, where) -> int:
     finally:
         stop()
     _print_power(res)
+    runs, unknown = ([], []) if args.stated is not None else \
+        _fitted(args, lx)
+    ranged = []
+    if runs:
+        ranged = _power_runs(args, runs, workers, executor, res)
+    if unknown:
+        print(f"  {', '.join(unknown)}: not identified by the fit; held at the observer "
+              "file's value" + (", outside this range" if runs else ""))
     exact = None
     if args.exact:
         exact = args.stated.exact(res.n, res.alpha)
@@ -228,6 +238,17 @@ def _one_n(args, lx, workers, executor, where) -> int:
            **({} if exact is None else {"exact_power": exact.to_dict(orient="records")}),
            "predicted": res.means.astype(object).where(res.means.notna(), None)
            .to_dict(orient="records")}
+    if runs:
+        from ..simulate import power_range
+        rng = power_range(res.table, [(r, t.table) for r, t in ranged])
+        doc["power_range"] = {
+            "method": "each fitted parameter at its interval's low and high end, the others "
+                      "at the centre; the range is min..max over these runs and the centre's",
+            "studies_per_run": args.studies, "not_identified": unknown,
+            "runs": [{"param": r.param, "end": r.end, "value": r.value,
+                      "centre": r.centre, "power": t.table.to_dict(orient="records")}
+                     for r, t in ranged],
+            "effects": rng.to_dict(orient="records")}
     if args.target_power is not None:
         print(f"\nSearching the smallest N with power >= {args.target_power} "
               f"({args.studies} studies per N)...", file=sys.stderr)
@@ -255,6 +276,8 @@ def _one_n(args, lx, workers, executor, where) -> int:
         doc["target_power"] = args.target_power
         doc["smallest_n"] = table.astype(object).where(table.notna(), None) \
             .to_dict(orient="records")
+        if runs:
+            doc["smallest_n_range"] = _n_runs(args, runs, workers, executor, table)
         if exact_n is not None:
             t = exact_n.reset_index()
             doc["exact_smallest_n"] = t.astype(object).where(t.notna(), None) \
@@ -264,6 +287,104 @@ def _one_n(args, lx, workers, executor, where) -> int:
                                    encoding="utf-8")
         print(f"\nwrote {args.json}", file=sys.stderr)
     return 0
+
+
+def _fitted(args, lx):
+    """The runs over the observer file's fitted intervals (none without a fitted: section)."""
+    if args.observer is None:
+        return [], []
+    from ..observer.model import ObserverModel
+    from ..simulate import fitted_runs
+    model = ObserverModel.for_experiment(lx, params_file=args.observer)
+    runs, unknown = fitted_runs(args.observer, model.site)
+    held = sorted({r.param for r in runs if r.param in model.spec.params})
+    if held:
+        print(f"  {', '.join(held)}: set by the experiment's observer.params, which overrides "
+              "the observer file; left out of the range", file=sys.stderr)
+    return [r for r in runs if r.param not in held], unknown
+
+
+def _run_label(r) -> str:
+    return f"{r.param} = {r.value:.4g} ({r.end})"
+
+
+def _power_runs(args, runs, workers, executor, centre):
+    """Power with each fitted parameter at each end of its interval; the range printed."""
+    from ..simulate import power_range, run_power
+    params = sorted({r.param for r in runs})
+    print(f"\nPower over the fitted parameters' 95 % intervals ({', '.join(params)}): "
+          f"{len(runs)} more run{'' if len(runs) == 1 else 's'} of {args.studies} studies "
+          f"({len(runs) * args.studies} "
+          f"studies more; {len(runs) + 1} times the centre's cost in all)...", file=sys.stderr)
+    out = []
+    for r in runs:
+        advance, stop = _progress(args.studies, args.quiet, _run_label(r))
+        try:
+            t = run_power(args.file, args.participants, args.studies, alpha=args.alpha,
+                          seed=args.seed, workers=workers, params_file=args.observer,
+                          overrides=r.overrides, progress=advance, executor=executor)
+        finally:
+            stop()
+        out.append((r, t))
+    if centre.table.empty:
+        return out
+    rng = power_range(centre.table, [(r, t.table) for r, t in out])
+    print(f"\nPower over the fitted parameters' 95 % intervals at N = {centre.n} (each "
+          "parameter at its interval's low and high end, the others at the centre; the "
+          f"same simulated participants in every run; {len(runs) + 1} runs of "
+          f"{args.studies} studies):")
+    print(f"  {'effect':<58} {'centre':>6}  {'range':<14}")
+    for _, e in rng.iterrows():
+        print(f"  {e['effect']:<58} {e['centre']:6.3f}  {e['low']:.3f} .. {e['high']:.3f}")
+        for r, t in out:
+            row = t.table.set_index("effect").loc[e["effect"]]
+            print(f"      {_run_label(r):<40} {row['power']:.3f} "
+                  f"[{row['ci_low']:.3f}, {row['ci_high']:.3f}]")
+    return out
+
+
+def _n_runs(args, runs, workers, executor, centre) -> list[dict]:
+    """The smallest N with each fitted parameter at each end of its interval."""
+    from ..simulate import smallest_n
+    print(f"\nSearching the smallest N over the fitted intervals: {len(runs)} more "
+          f"searches of {args.studies} studies per N ({len(runs) + 1} times the centre's "
+          "search in all)...", file=sys.stderr)
+    found = []
+    for r in runs:
+        table, res = smallest_n(args.file, args.target_power, args.studies, alpha=args.alpha,
+                                seed=args.seed, n_max=args.max_participants,
+                                workers=workers, params_file=args.observer,
+                                overrides=r.overrides, executor=executor)
+        print(f"  {_run_label(r)}: {len(res)} Ns simulated", file=sys.stderr)
+        found.append((r, table.set_index("effect")))
+    inf = float("inf")
+
+    def n_of(x):
+        return inf if x is None or x != x else int(x)
+
+    def text(x):
+        return f"> {args.max_participants}" if x == inf else str(x)
+    print(f"\nSmallest N for power >= {args.target_power} over the fitted parameters' 95 % "
+          f"intervals ({len(runs) + 1} searches):")
+    rows = []
+    for _, c in centre.iterrows():
+        ns = {"centre": n_of(c["smallest_n"])}
+        each = []
+        for r, t in found:
+            n = n_of(t.loc[c["effect"], "smallest_n"]) if c["effect"] in t.index else inf
+            each.append({"param": r.param, "end": r.end, "value": r.value,
+                         "smallest_n": None if n == inf else n})
+            ns[_run_label(r)] = n
+        lo, hi = min(ns.values()), max(ns.values())
+        at = text(ns["centre"])
+        print(f"  {c['effect']:<58} N {at if at.startswith('>') else '= ' + at} at the "
+              f"centre; {text(lo)} .. {text(hi)} over the intervals")
+        print("      " + "; ".join(f"{k}: {text(v)}" for k, v in ns.items() if k != "centre"))
+        rows.append({"effect": c["effect"],
+                     "centre": None if ns["centre"] == inf else ns["centre"],
+                     "low": None if lo == inf else lo, "high": None if hi == inf else hi,
+                     "runs": each})
+    return rows
 
 
 def _sweep(args, lx, spec, points, workers, executor, where) -> int:

@@ -12,6 +12,11 @@ estimate is reported. The participants' estimates make the population
 (:func:`population`): the centre and the spread that
 :func:`~vtexp.observer.params.draw_participant` draws from, written as an
 observer file (:func:`observer_yaml`) that ``vtexp simulate --observer`` takes.
+The population's centre gets a 95 % interval too, from the same population
+likelihood: its profile over the centre (the spread maximised again at each value),
+cut at 3.84 / 2 below its maximum (:func:`_centre_interval`). The file records it,
+with the parameters whose centre is not identified, in its ``fitted:`` section
+(:func:`fitted_record`), so that ``vtexp simulate`` can report power over it.
 
 A percept parameter (integration time, two-point threshold) changes the percept
 itself: it is fitted on a grid of percepts (:func:`fit_percept_participant`), computed
@@ -577,6 +582,11 @@ class Population:
     spreads: dict[str, float]
     used: dict[str, int]
     notes: list[str]
+    #: the centre's 95 % interval, (low, high), of each parameter whose centre the
+    #: participants identify (:func:`_centre_interval`)
+    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: parameters whose population centre these data do not identify
+    not_identified: list[str] = field(default_factory=list)
 
 
 def _base_tau(name: str, base) -> float | None:
@@ -612,6 +622,8 @@ def population(fits: list[ParticipantFit], names: list[str], base=None) -> Popul
     :class:`~vtexp.observer.params.ObserverParams`) and the centre is fitted with it.
     """
     values, spreads, used, notes = {}, {}, {}, []
+    intervals: dict[str, tuple[float, float]] = {}
+    unknown: list[str] = []
     for n in names:
         spec = spec_of(n)
         ps = [f.params[n] for f in fits if f.params[n].identified and f.params[n].grid]
@@ -619,13 +631,20 @@ def population(fits: list[ParticipantFit], names: list[str], base=None) -> Popul
         if not ps:
             notes.append(f"{n}: identified for no participant; the observer file keeps its "
                          "value")
+            unknown.append(n)
             continue
         lo_u, hi_u = spec.bounds_u
         u = np.linspace(lo_u, hi_u, 401)
         x = np.array([spec.from_u(v) for v in u])
         L = np.array([np.interp(u, [spec.to_u(g) for g in p.grid], p.profile) for p in ps])
         if spec.spread is None:
-            values[n] = float(x[int(np.argmax(L.sum(axis=0)))])
+            total = L.sum(axis=0)
+            values[n] = float(x[int(np.argmax(total))])
+            lo_c, hi_c = _cut_interval(u, -total, float(-total.max()))
+            if lo_c <= u[0] and hi_c >= u[-1]:
+                unknown.append(n)
+            else:
+                intervals[n] = (spec.from_u(lo_c), spec.from_u(hi_c))
             continue
         grids = [np.array([spec.to_u(g) for g in p.grid]) for p in ps]
         profs = [np.array(p.profile) for p in ps]
@@ -700,6 +719,15 @@ def population(fits: list[ParticipantFit], names: list[str], base=None) -> Popul
             values[n] = 1 / (1 + math.exp(-mu))
         elif not centred:
             values[n] = spec.from_u(mu)
+        if not centred:
+            lo_t, hi_t = _centre_interval(neg_marginal, mu, tau, t_min, float(t.max()),
+                                          tau_lo, tau_hi,
+                                          fixed_tau=None if keep is None else tau)
+            if lo_t <= t_min and hi_t >= float(t.max()):
+                unknown.append(n)
+            else:
+                back = (lambda tt: 1 / (1 + math.exp(-tt))) if n == "lapse" else spec.from_u
+                intervals[n] = (float(back(lo_t)), float(back(hi_t)))
         if keep is not None:
             continue
         spread = math.sqrt(math.expm1(tau * tau)) if spec.log else tau
@@ -708,7 +736,60 @@ def population(fits: list[ParticipantFit], names: list[str], base=None) -> Popul
                          f"an observer file holds; written as {_SPREAD_MAX[spec.spread]:g}")
             spread = _SPREAD_MAX[spec.spread]
         spreads[spec.spread] = spread
-    return Population(values, spreads, used, notes)
+    return Population(values, spreads, used, notes, intervals, unknown)
+
+
+def _cut_interval(x: np.ndarray, nll: np.ndarray, best: float) -> tuple[float, float]:
+    """Where the negative log-likelihood ``nll`` (on the grid ``x``) rises by HALF_CHI2
+    above ``best`` on each side of its minimum, interpolated linearly between the grid's
+    points; the grid's end when it never rises so far."""
+    best = min(best, float(nll.min()))
+    cut = best + HALF_CHI2
+    k = int(np.argmin(nll))
+
+    def edge(direction: int) -> float:
+        j = k
+        while 0 <= j + direction < len(x):
+            if nll[j + direction] > cut:
+                x0, x1, y0, y1 = x[j], x[j + direction], nll[j], nll[j + direction]
+                return float(x0 + (cut - y0) * (x1 - x0) / (y1 - y0))
+            j += direction
+        return float(x[-1] if direction > 0 else x[0])
+
+    return edge(-1), edge(1)
+
+
+#: Points of the profile of a population's centre over its range.
+CENTRE_POINTS = 81
+
+
+def _centre_interval(neg_marginal, mu: float, tau: float, t_lo: float, t_hi: float,
+                     tau_lo: float, tau_hi: float, fixed_tau: float | None = None
+                     ) -> tuple[float, float]:
+    """The 95 % interval of a population's centre ``mu``: its profile likelihood.
+
+    The population's marginal likelihood (the one :func:`population` maximises) is
+    profiled over the centre: at each of CENTRE_POINTS values of ``mu`` over its range
+    (the scale the parameter varies on) the spread is maximised again (or held at
+    ``fixed_tau`` when the fit kept the observer file's spread), and the interval is
+    where that profile is within HALF_CHI2 (3.84 / 2, likelihood ratio, chi-square
+    with one degree of freedom) of its maximum. The spread's own uncertainty is
+    thereby taken into account (profiled out), which a Wald interval from the
+    curvature at the maximum would not; with four participants it matters.
+    """
+    from scipy.optimize import minimize_scalar
+    grid = np.union1d(np.linspace(t_lo, t_hi, CENTRE_POINTS), [mu])
+
+    def prof(m: float) -> float:
+        if fixed_tau is not None:
+            return float(neg_marginal([m, math.log(fixed_tau)]))
+        r = minimize_scalar(lambda a: neg_marginal([m, a]), bounds=(tau_lo, tau_hi),
+                            method="bounded", options={"xatol": 1e-3})
+        return float(min(r.fun, neg_marginal([m, math.log(tau)])))
+
+    values = np.array([prof(float(m)) for m in grid])
+    best = float(neg_marginal([mu, math.log(tau)]))
+    return _cut_interval(grid, values, best)
 
 
 
@@ -731,6 +812,7 @@ def observer_yaml(base_file: Path, pop: Population, fits: list[ParticipantFit], 
     for k, v in pop.spreads.items():
         spreads[k] = round(float(v), 6)
     data["population"] = spreads
+    data["fitted"] = fitted_record(pop, names, len(fits), site=site)
     head = [f"# Fitted by vtexp observer fit to {len(fits)} participant(s) of {experiment}",
             f"# ({source}), from {base_file.name}: fitted {', '.join(names)}; every other",
             "# value is the base file's. Estimates and 95 % profile-likelihood intervals:"]
@@ -742,6 +824,31 @@ def observer_yaml(base_file: Path, pop: Population, fits: list[ParticipantFit], 
     head += [f"# {t}" for t in pop.notes]
     body = yaml.safe_dump(data, sort_keys=False, allow_unicode=True)
     return "\n".join(head) + "\n" + body
+
+
+def fitted_record(pop: Population, names: list[str], participants: int, *,
+                  site: str | None = None) -> dict:
+    """The observer file's ``fitted:`` section: what was fitted, for ``vtexp simulate``.
+
+    For each parameter whose population centre the data identify, the centre (the
+    value written in the file) and its 95 % interval (profile likelihood of the
+    population's marginal likelihood, :func:`_centre_interval`); the parameters whose
+    centre they do not identify (the file keeps its value for them) under
+    ``not_identified``. ``site``: the body site a fitted two-point threshold is of.
+    """
+    def r(x: float) -> float:
+        return round(float(x), 6)
+    params = {n: {"centre": r(pop.values[n]), "low": r(pop.intervals[n][0]),
+                  "high": r(pop.intervals[n][1])}
+              for n in names if n in pop.intervals and n in pop.values}
+    out: dict = {"by": "vtexp observer fit",
+                 "interval": "95 % profile likelihood of the population centre "
+                             "(likelihood ratio, 3.84 / 2)",
+                 "participants": participants, "params": params,
+                 "not_identified": [n for n in names if n in pop.not_identified]}
+    if site is not None and "two_point_threshold_mm" in params:
+        out["site"] = site
+    return out
 
 
 # --------------------------------------------------------------------------- the whole fit

@@ -41,6 +41,38 @@ class PinThermal(Model):
     cooling_ms: Positive
 
 
+class FittedValue(Model):
+    """A fitted parameter's population centre and its 95 % interval."""
+
+    centre: float
+    low: float
+    high: float
+
+
+class Fitted(Model):
+    """What ``vtexp observer fit`` fitted (the ``fitted:`` section of its observer file):
+    each fitted parameter's centre and 95 % interval, and the parameters the data did
+    not identify. ``vtexp simulate`` reports power over these intervals."""
+
+    by: str = ""
+    interval: str = ""
+    participants: int | None = None
+    site: str | None = None
+    params: dict[str, FittedValue] = Field(default_factory=dict)
+    not_identified: list[str] = Field(default_factory=list)
+
+
+#: The parameters a ``fitted:`` section can hold, and the values each can take
+#: (low, high, whether the low end itself is allowed).
+FITTED_RANGES: dict[str, tuple[float, float, bool]] = {
+    "efficiency": (0.0, 1.0, False), "decision_noise": (0.0, float("inf"), True),
+    "lapse": (0.0, 1.0, True), "abstain_criterion": (0.0, float("inf"), True),
+    "rating_bias": (float("-inf"), float("inf"), True),
+    "rating_step": (0.0, float("inf"), False), "turns_sd": (0.0, float("inf"), True),
+    "integration_ms": (0.0, float("inf"), False),
+    "two_point_threshold_mm": (0.0, float("inf"), False)}
+
+
 class ObserverParams(Model):
     """One model participant (or the population's typical one)."""
 
@@ -62,6 +94,7 @@ class ObserverParams(Model):
     lapse: Annotated[float, Field(ge=0, le=1)] = 0.02
     answer_templates: Literal["told", "rendered"] = "told"
     population: PopulationSpread = Field(default_factory=PopulationSpread)
+    fitted: Fitted | None = None
 
     def integration_of(self, site: str) -> float:
         """The integration time constant at ``site`` (one value for every site, or the
@@ -107,7 +140,7 @@ def load_params(path: Path | str | None = None, overrides: dict[str, Any] | None
         data[k] = {**data[k], **v} if isinstance(v, dict) and isinstance(data.get(k), dict) \
             else v
     try:
-        return ObserverParams.model_validate(data)
+        params = ObserverParams.model_validate(data)
     except ValidationError as e:
         err = e.errors()[0]
         key = ".".join(str(x) for x in err["loc"])
@@ -115,6 +148,35 @@ def load_params(path: Path | str | None = None, overrides: dict[str, Any] | None
             raise InputError(f"{err['msg']} (an override of {p.name})",
                              key=f"observer.params.{key}") from None
         raise InputError(f"{err['msg']}", path=str(p), key=key) from None
+    if params.fitted is not None:
+        check_fitted(params.fitted, p)
+    return params
+
+
+def check_fitted(fitted: Fitted, path: Path) -> None:
+    """The ``fitted:`` section's values make sense: each a parameter a fit estimates,
+    ``low <= centre <= high``, each a value the parameter can take."""
+    for name, v in fitted.params.items():
+        key = f"fitted.params.{name}"
+        if name not in FITTED_RANGES:
+            raise InputError(f"no parameter {name!r} is fitted; the parameters are "
+                             + ", ".join(FITTED_RANGES), path=str(path), key=key)
+        lo, hi, closed = FITTED_RANGES[name]
+        for end in ("low", "centre", "high"):
+            x = getattr(v, end)
+            if not (x == x) or x > hi or x < lo or (x == lo and not closed):
+                side = "[" if closed else "("
+                raise InputError(f"{x} is not a value of {name} (it takes {side}{lo:g}, "
+                                 f"{hi:g}])", path=str(path), key=f"{key}.{end}")
+        if not v.low <= v.centre <= v.high:
+            raise InputError(f"the interval [{v.low:g}, {v.high:g}] does not hold the "
+                             f"centre {v.centre:g} (low <= centre <= high)",
+                             path=str(path), key=key)
+    for name in fitted.not_identified:
+        if name not in FITTED_RANGES:
+            raise InputError(f"no parameter {name!r} is fitted; the parameters are "
+                             + ", ".join(FITTED_RANGES), path=str(path),
+                             key="fitted.not_identified")
 
 
 # --------------------------------------------------------------------------- the population
