@@ -256,6 +256,21 @@ def demo_run(tmp_path_factory):
     return root, out.read_text()
 
 
+
+def record_plays(dev) -> list[tuple[float, float]]:
+    """Wrap ``dev.play`` so that each play's start and end (``time.monotonic``) are added
+    to the list returned, as the device is asked and as it answers."""
+    plays: list[tuple[float, float]] = []
+    play = dev.play
+
+    def timed(schedule, **kw):
+        t0 = time.monotonic()
+        rep = play(schedule, **kw)
+        plays.append((t0, time.monotonic()))
+        return rep
+    dev.play = timed
+    return plays
+
 def session_record(ses: Path) -> Path:
     """The session record of a BIDS session folder (``.../sub-P/ses-N`` or its ``beh/``):
     ``sourcedata/vtexp/sub-P/ses-N/*_session.json`` of the same dataset."""

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, record_plays
 from xkeyboard import XKeyboard
 
 if importlib.util.find_spec("psychopy") is None:
@@ -185,16 +185,8 @@ def _session(study, audio, display, tmp_path):
                 while not ended.wait(0.5):     # keys pressed before it listened)
                     event._keyBuffer.append(("escape", 0, 0.0))
 
-    plays: list[tuple[float, float]] = []
     with open_device("sim", DeviceProfile.load(lx.experiment.device)) as dev:
-        play = dev.play
-
-        def timed(schedule, **kw):
-            t0 = time.monotonic()
-            rep = play(schedule, **kw)
-            plays.append((t0, time.monotonic()))
-            return rep
-        dev.play = timed
+        plays = record_plays(dev)
         thread = threading.Thread(target=participant, daemon=True)
         thread.start()
         try:

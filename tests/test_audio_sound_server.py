@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import ROOT, dies_with_us, write_experiment
+from conftest import ROOT, dies_with_us, record_plays, write_experiment
 from xkeyboard import XKeyboard
 
 if importlib.util.find_spec("psychopy") is None:
@@ -509,20 +509,12 @@ def _a_session_recorded(display: str, tmp_path: Path, cli, monkeypatch, underflo
                         lx=lx)
     assert r.speech.audio.output["name"] == "pulse"
     sp = r.speech
-    plays: list[tuple[float, float]] = []
     who = Participant(display, r)
     session_end = None
     with Recorder(tmp_path / "monitor.raw") as rec:
         try:
             with open_device("sim:realtime", DeviceProfile.load(lx.experiment.device)) as dev:
-                play = dev.play
-
-                def timed(schedule, **kw):
-                    t0 = time.monotonic()
-                    rep = play(schedule, **kw)
-                    plays.append((t0, time.monotonic()))
-                    return rep
-                dev.play = timed
+                plays = record_plays(dev)
                 who.start()
                 try:
                     run_session(lx, dev, r, SessionOptions(participant="01",

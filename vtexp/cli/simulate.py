@@ -200,7 +200,7 @@ def cmd_simulate(args) -> int:
 
 
 def _one_n(args, lx, workers, executor, where) -> int:
-    from ..simulate import run_power, smallest_n
+    from ..simulate import run_power
 
     factors = list(lx.experiment.factors)
     who = "model participants" if args.stated is None else \
@@ -250,43 +250,53 @@ def _one_n(args, lx, workers, executor, where) -> int:
                      for r, t in ranged],
             "effects": rng.to_dict(orient="records")}
     if args.target_power is not None:
-        print(f"\nSearching the smallest N with power >= {args.target_power} "
-              f"({args.studies} studies per N)...", file=sys.stderr)
-
-        def step(n, r):
-            if not args.quiet:
-                print(f"  N = {n}: " + ", ".join(f"{p:.2f}" for p in r.table["power"])
-                      + f"  ({r.seconds:.1f} s)", file=sys.stderr)
-        table, _ = smallest_n(args.file, args.target_power, args.studies, alpha=args.alpha,
-                              seed=args.seed, n_max=args.max_participants, workers=workers,
-                              params_file=args.observer, on_step=step, executor=executor)
-        exact_n = None
-        if args.exact:
-            exact_n = args.stated.exact_smallest_n(args.target_power, args.alpha,
-                                                   args.max_participants) \
-                .set_index("effect")
-        print(f"\nSmallest N for power >= {args.target_power}"
-              + (" (simulated; exact)" if exact_n is not None else "") + ":")
-        for _, r in table.iterrows():
-            n = _n_text(r["smallest_n"], r["power"], args.max_participants)
-            if exact_n is not None and r["effect"] in exact_n.index:
-                e = exact_n.loc[r["effect"]]
-                n += f";  exact {_n_text(e['smallest_n'], e['power'], args.max_participants)}"
-            print(f"  {r['effect']:<58} {n}")
-        doc["target_power"] = args.target_power
-        doc["smallest_n"] = table.astype(object).where(table.notna(), None) \
-            .to_dict(orient="records")
-        if runs:
-            doc["smallest_n_range"] = _n_runs(args, runs, workers, executor, table)
-        if exact_n is not None:
-            t = exact_n.reset_index()
-            doc["exact_smallest_n"] = t.astype(object).where(t.notna(), None) \
-                .to_dict(orient="records")
+        _target_power(args, workers, executor, runs, doc)
     if args.json:
         Path(args.json).write_text(json.dumps(doc, indent=2, default=str) + "\n",
                                    encoding="utf-8")
         print(f"\nwrote {args.json}", file=sys.stderr)
     return 0
+
+
+def _target_power(args, workers, executor, runs, doc: dict) -> None:
+    """--target-power: the smallest N for each effect (with --exact, the exact one beside
+    it; with a fitted file, its range over the fitted intervals), printed and put in
+    ``doc``."""
+    from ..simulate import smallest_n
+
+    print(f"\nSearching the smallest N with power >= {args.target_power} "
+          f"({args.studies} studies per N)...", file=sys.stderr)
+
+    def step(n, r):
+        if not args.quiet:
+            print(f"  N = {n}: " + ", ".join(f"{p:.2f}" for p in r.table["power"])
+                  + f"  ({r.seconds:.1f} s)", file=sys.stderr)
+
+    table, _ = smallest_n(args.file, args.target_power, args.studies, alpha=args.alpha,
+                          seed=args.seed, n_max=args.max_participants, workers=workers,
+                          params_file=args.observer, on_step=step, executor=executor)
+    exact_n = None
+    if args.exact:
+        exact_n = args.stated.exact_smallest_n(args.target_power, args.alpha,
+                                               args.max_participants) \
+            .set_index("effect")
+    print(f"\nSmallest N for power >= {args.target_power}"
+          + (" (simulated; exact)" if exact_n is not None else "") + ":")
+    for _, r in table.iterrows():
+        n = _n_text(r["smallest_n"], r["power"], args.max_participants)
+        if exact_n is not None and r["effect"] in exact_n.index:
+            e = exact_n.loc[r["effect"]]
+            n += f";  exact {_n_text(e['smallest_n'], e['power'], args.max_participants)}"
+        print(f"  {r['effect']:<58} {n}")
+    doc["target_power"] = args.target_power
+    doc["smallest_n"] = table.astype(object).where(table.notna(), None) \
+        .to_dict(orient="records")
+    if runs:
+        doc["smallest_n_range"] = _n_runs(args, runs, workers, executor, table)
+    if exact_n is not None:
+        t = exact_n.reset_index()
+        doc["exact_smallest_n"] = t.astype(object).where(t.notna(), None) \
+            .to_dict(orient="records")
 
 
 def _fitted(args, lx):
