@@ -48,8 +48,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vtexp.observer.fit import PERCEPT_PARAMS, _fit_one, population, spec_of  # noqa: E402
-from vtexp.observer.likelihood import Likelihood, Trial, decision_values  # noqa: E402,F401
+from vtexp.observer.fit import (  # noqa: E402
+    PERCEPT_PARAMS, _fit_one, population, simulated_trials, spec_of)
+from vtexp.observer.likelihood import Likelihood, decision_values  # noqa: E402
 from vtexp.observer.model import question_columns  # noqa: E402
 from vtexp.simulate import Setup, simulate_participant  # noqa: E402
 
@@ -71,15 +72,6 @@ def setup_of(study: str, names: tuple = ()) -> Setup:
     return _SETUPS[key]
 
 
-def trials_of(setup: Setup, rows: list[dict]) -> list[Trial]:
-    by_levels = {tuple(c.levels[f] for f in setup.factors): c for c in setup.conditions}
-    out = []
-    for r in rows:
-        c = by_levels[tuple(r[f] for f in setup.factors)]
-        out.append(Trial(r["question"], c, setup.played[c.index], r["answer"]))
-    return out
-
-
 def truth_of(who, name: str) -> float:
     if name in ("abstain_criterion", "rating_step", "turns_sd"):
         return float("nan")          # one value for everyone: filled in by the caller
@@ -97,7 +89,7 @@ def fit_one(args) -> tuple[list[dict], object]:
     who = m.participant(SEED, pid)
     t0 = time.perf_counter()
     # vtexp observer fit's own path (a percept parameter on its grid of percepts)
-    f = _fit_one((m, skin, trials_of(setup, simulate_participant(setup, SEED, pid)), names,
+    f = _fit_one((m, skin, simulated_trials(setup, simulate_participant(setup, SEED, pid)), names,
                   fixed, pid))
     dt = time.perf_counter() - t0
     rows = []
@@ -126,7 +118,7 @@ def eval_baseline(study: str, seconds: float = 3.0) -> dict:
     setup = setup_of(study)
     m = setup.model
     skin = m.participant(0, "fit", typical=True)
-    lik = Likelihood(m, skin, trials_of(setup, simulate_participant(setup, SEED, "base")))
+    lik = Likelihood(m, skin, simulated_trials(setup, simulate_participant(setup, SEED, "base")))
     v = decision_values(m)
     k, t0 = 0, time.perf_counter()
     while time.perf_counter() - t0 < seconds / 2 or k < 5:

@@ -15,7 +15,7 @@ from vtexp.compile import compile_conditions
 from vtexp.devices.sim import SimDevice
 from vtexp.experiment import load_experiment
 from vtexp.observer import ModelObserver, ObserverModel
-from vtexp.observer.fit import fit_participant
+from vtexp.observer.fit import fit_participant, simulated_trials
 from vtexp.observer.likelihood import Likelihood, Trial, _answer_options, decision_values
 from vtexp.observer.model import question_columns
 from vtexp.observer.params import load_params
@@ -26,15 +26,6 @@ GRID = ROOT / "experiments" / "duration_interval_grid.yaml"
 #: Participants who differ only in their decision parameters (the fit holds the percept's).
 SAME_SKIN = {"population": {"two_point_threshold_cv": 0.0, "integration_cv": 0.0,
                             "intensity_levels_sd": 0.0}}
-
-
-def _trials(setup: Setup, rows: list[dict]) -> list[Trial]:
-    by_levels = {tuple(c.levels[f] for f in setup.factors): c for c in setup.conditions}
-    out = []
-    for r in rows:
-        c = by_levels[tuple(r[f] for f in setup.factors)]
-        out.append(Trial(r["question"], c, setup.played[c.index], r["answer"]))
-    return out
 
 
 @pytest.mark.parametrize("name", ["duration_interval_grid", "six_mode_ball", "whirlpool"])
@@ -69,7 +60,7 @@ def test_the_likelihood_is_smooth_and_the_same_at_every_call():
     setup = Setup.load(GRID)
     m = setup.model
     who = m.participant(0, "x", typical=True)
-    lik = Likelihood(m, who, _trials(setup, simulate_participant(setup, 1, "P1")))
+    lik = Likelihood(m, who, simulated_trials(setup, simulate_participant(setup, 1, "P1")))
     v = decision_values(m)
     x = np.linspace(np.log(0.05), np.log(0.2), 21)
     ll = np.array([lik({**v, "efficiency": float(np.exp(e))}) for e in x])
@@ -89,7 +80,7 @@ def test_known_parameters_are_recovered_within_their_intervals():
     inside = 0
     for pid in ("r1", "r2", "r3"):
         who = m.participant(4, pid)
-        lik = Likelihood(m, skin, _trials(setup, simulate_participant(setup, 4, pid)))
+        lik = Likelihood(m, skin, simulated_trials(setup, simulate_participant(setup, 4, pid)))
         f = fit_participant(lik, ["efficiency", "lapse"], fixed, participant=pid)
         for name in ("efficiency", "lapse"):
             p = f.params[name]
@@ -109,7 +100,7 @@ def test_the_integration_time_is_recovered_on_its_grid():
             for r in simulate_participant(setup, 5, "t1", session=ses, typical=True)]
     who = m.participant(0, "fit", typical=True)
     grid = percept_grid("integration_ms")
-    liks = [Likelihood(m, with_percept(who, "integration_ms", v), _trials(setup, rows))
+    liks = [Likelihood(m, with_percept(who, "integration_ms", v), simulated_trials(setup, rows))
             for v in grid]
     f = fit_percept_participant(liks, "integration_ms", grid, [], decision_values(m))
     p = f.params["integration_ms"]
@@ -129,7 +120,7 @@ def test_a_parameter_the_answers_do_not_depend_on_is_not_identified(tmp_path):
     setup = Setup.load(path, overrides=SAME_SKIN)
     m = setup.model
     lik = Likelihood(m, m.participant(0, "fit", typical=True),
-                     _trials(setup, simulate_participant(setup, 2, "u1")))
+                     simulated_trials(setup, simulate_participant(setup, 2, "u1")))
     f = fit_participant(lik, ["efficiency"], decision_values(m), participant="u1")
     p = f.params["efficiency"]
     assert not p.identified and p.estimate is None

@@ -527,6 +527,20 @@ def read_trials(paths: list, *, params_file=None, include_simulated: bool = Fals
                     None if params_file is None else str(params_file)))
 
 
+def simulated_trials(setup, rows: list[dict]) -> list[Trial]:
+    """The trials of a simulated participant (the rows of
+    :func:`vtexp.simulate.simulate_participant`: the factors' levels, the question, the
+    answer), each with what its condition played in the simulation's ``setup``
+    (:class:`vtexp.simulate.Setup`): for recovery, where known parameters are fitted
+    back."""
+    by_levels = {tuple(c.levels[f] for f in setup.factors): c for c in setup.conditions}
+    out = []
+    for r in rows:
+        c = by_levels[tuple(r[f] for f in setup.factors)]
+        out.append(Trial(r["question"], c, setup.played[c.index], r["answer"]))
+    return out
+
+
 def _played_by_trial(path: Path, beh: pd.DataFrame) -> dict[int, PlayReport]:
     """The first play of each trial, from the device events, its onsets from the play's
     start (the trial log's stimulus_onset_ms)."""
