@@ -117,6 +117,8 @@ def make_backend(name: str) -> Backend:
         def c_cleanup():
             for proc in procs:
                 proc.stop()
+                if name == "c-host":
+                    proc.trace_path.unlink(missing_ok=True)
         return Backend(name, c_opener, c_driven, c_all_off, c_cleanup, realtime=True)
     raise ValueError(name)
 

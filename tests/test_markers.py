@@ -6,8 +6,10 @@ LSL runs on this machine only (``ResolveScope = machine``, the one known peer
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -18,6 +20,7 @@ import pytest
 from conftest import MINIMAL, write_experiment
 
 _CFG = Path(tempfile.mkdtemp(prefix="vtexp-lsl-")) / "lsl_api.cfg"
+atexit.register(shutil.rmtree, _CFG.parent, True)
 _CFG.write_text("[ports]\nIPv6 = disable\n[multicast]\nResolveScope = machine\n"
                 "[lab]\nKnownPeers = {127.0.0.1}\n")
 os.environ.setdefault("LSLAPICFG", str(_CFG))   # before liblsl reads its configuration

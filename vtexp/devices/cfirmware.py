@@ -31,6 +31,7 @@ import subprocess
 import tempfile
 import threading
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
@@ -298,6 +299,13 @@ class ChipClock:
         return f"ChipClock({self.path})"
 
 
+def _unlink(path: str) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
 class AvrSimulator(_Process):
     """The ATmega2560 firmware for ``profile`` in simavr, on a pty (see module docstring).
 
@@ -335,6 +343,9 @@ class AvrSimulator(_Process):
                                         suffix=".jsonl")
             os.close(fd)
             trace = Path(name)
+            # a trace of our own making goes when this object does (or at exit): it is
+            # read after stop(), so not removed there
+            weakref.finalize(self, _unlink, name)
         argv = [str(out / "sim" / "vtexp-simavr"), str(self.elf), "--trace", str(trace),
                 "--drop", str(faults[0]), "--corrupt", str(faults[1]), "--insert",
                 str(faults[2]), "--seed", str(seed)]
