@@ -132,8 +132,11 @@ def write_video(path: str | Path, kind: str = "rectangle", *, seconds: float = 5
             if k < n_empty:
                 img = scene.copy() if scene is not None else np.full_like(img, img[0, 0])
                 r = c = None
-            if noise_sd > 0:
-                img = np.clip(img + rng.normal(0, noise_sd, img.shape), 0, 255).astype(np.uint8)
+            if noise_sd > 0:                   # in float32: a third less time per frame
+                noisy = rng.standard_normal(img.shape, dtype=np.float32)
+                noisy *= noise_sd
+                noisy += img
+                img = np.clip(noisy, 0, 255, out=noisy).astype(np.uint8)
             writer.write(img)
             truth.append({"frame": k, "t_s": t, "center_x": cx, "center_y": cy,
                           "rotation_deg": rot, "centroid_row": r, "centroid_col": c})
