@@ -14,10 +14,10 @@ $(VENV)/.core: pyproject.toml
 	touch $@
 
 # Tests also install the participant window (PsychoPy, the `gui` extra), the BIDS
-# validator (in `test`), DuckDB (the `pool` extra), the LSL marker stream (`lsl`) and
-# Dask (`cluster`). PsychoPy
-# pulls in opencv-python, which shares the cv2 module with the contrib build that
-# vtexp needs: remove it and put the contrib build back, then check.
+# validator and scikit-image's photographs (in `test`), DuckDB (the `pool` extra), the
+# LSL marker stream (`lsl`) and Dask (`cluster`). PsychoPy pulls in opencv-python, which
+# shares the cv2 module with the contrib build that vtexp needs: remove it and put the
+# contrib build back, then check.
 $(VENV)/.test: $(VENV)/.core
 	$(BIN)/python -m pip install --quiet -e '.[gui,test,pool,lsl,cluster]'
 	$(BIN)/python -m pip uninstall --quiet -y opencv-python opencv-python-headless
