@@ -147,6 +147,7 @@ class Case:
     held: dict | None     # levels selecting the held-out cells of the same table
     predict: tuple | None = None   # (study, table) of held-out cells of another experiment
     effects: tuple = ()
+    scan: tuple | None = None      # (where, answer) for most_often
 
 
 CASES = {
@@ -166,13 +167,44 @@ CASES = {
     "pad_static_to_dynamic": Case("seed 000: fitted on the static modes, predicting the "
                                   "dynamic modes", "six_mode_ball", "seed000_modes",
                                   {"display": "static"}, {"display": "dynamic"},
-                                  effects=tuple(SEED000_EFFECTS)),
+                                  effects=tuple(SEED000_EFFECTS),
+                                  scan=({"display": "static"}, "plane circular")),
 }
 
 NO_NUMBERS = ("seed 002 (whirlpool; circle vs rectangle): the paper reports its results in "
               "Figs. 12-17 and 19-20 and in prose only (no rate, rating or count is printed "
               "in the text), so there are no cells to fit or predict; "
               "docs/model-predictions.md compares its prose.")
+
+
+def most_often(study: str, table: str, where: dict, answer: str) -> dict:
+    """The most often the model gives ``answer`` in the cells ``where``, without lapses,
+    over a grid of efficiency, decision noise, abstain criterion and integration time:
+    whether any value of these parameters makes the answer a choice, not a guess."""
+    from vtexp.observer.fit import with_percept
+    from vtexp.observer.published import CellRates
+    setup = setup_of(study)
+    t = table_of(table, study)
+    cells = t.select(**where)
+    who = setup.model.participant(0, "fit", typical=True)
+    best = {"rate": -1.0}
+    for integ in (10.0, 40.0, 400.0):
+        rates = CellRates(setup.model, with_percept(who, "integration_ms", integ), t, cells,
+                          setup.conditions, setup.played)
+        for eff in np.geomspace(1e-3, 1.0, 13):
+            for noise in (0.05, 1.0, 10.0):
+                for crit in (0.0, 1.0, 10.0):
+                    v = {**decision_values(setup.model), "efficiency": float(eff),
+                         "lapse": 0.0, "decision_noise": noise, "abstain_criterion": crit}
+                    got = rates.predicted(v)
+                    r = max(x.get(answer, 0.0) for x in got.values())
+                    if r > best["rate"]:
+                        best = {"rate": r, "integration_ms": integ, "efficiency": float(eff),
+                                "decision_noise": noise, "abstain_criterion": crit}
+    return {"answer": answer, "cells": [c.name for c in cells], "grid": {
+        "integration_ms": [10, 40, 400], "efficiency": "13 values, 0.001-1 (log)",
+        "decision_noise": [0.05, 1, 10], "abstain_criterion": [0, 1, 10], "lapse": 0},
+        "most": best}
 
 
 def flat(pred: dict) -> dict[str, float]:
@@ -250,6 +282,7 @@ def run_case(key: str, case: Case, names: list[str]) -> dict:
                         "paper_sign": sign(paper), "model_sign": sign(model_e),
                         "signs_over_intervals": "".join(sorted({sign(v) for v in vals})),
                         "agrees": sign(paper) == sign(model_e)})
+    scan = None if case.scan is None else most_often(case.study, case.table, *case.scan)
     params = {n: {"estimate": p.estimate, "low": p.low, "high": p.high,
                   "identified": p.identified} for n, p in pf.fit.params.items()}
     return {"case": key, "title": case.name, "study": case.study, "table": case.table,
@@ -259,7 +292,7 @@ def run_case(key: str, case: Case, names: list[str]) -> dict:
             "settings": [{"label": s.label, "values": {k: s.values[k] for k in names
                                                         if k in s.values},
                           "percept": s.percept, "loglik": s.loglik} for s in pf.settings],
-            "cells": cells, "rmse_points": rmse, "effects": effects,
+            "cells": cells, "rmse_points": rmse, "effects": effects, "scan": scan,
             "seconds": time.perf_counter() - t0, "fit_seconds": t_fit}
 
 
@@ -286,6 +319,13 @@ def show(r: dict) -> None:
           f"{m['range'][0]:.1f}-{m['range'][1]:.1f}); goal {GOAL_POINTS:g}: {verdict}")
     print(f"   baselines: observer file's values {m['observer_file']:.1f}, no model (the fitted "
           f"cells' pooled rate) {m['no_model']:.1f}; fitted cells' RMSE {m['fitted_cells']:.1f}")
+    if r["scan"]:
+        sc, b = r["scan"], r["scan"]["most"]
+        print(f"   the most often the model answers {sc['answer']!r} in {', '.join(sc['cells'])} "
+              f"without lapses, over efficiency 0.001-1, decision noise 0.05-10, abstain "
+              f"criterion 0-10, integration 10-400 ms: {100 * b['rate']:.1f} % (efficiency "
+              f"{b['efficiency']:.3g}, noise {b['decision_noise']:g}, criterion "
+              f"{b['abstain_criterion']:g}, {b['integration_ms']:g} ms)")
     if r["effects"]:
         print(f"   {'effect':56} {'reported':>16} {'paper':>6} {'model':>6} {'range':>13} "
               f"{'sign':>5}")
