@@ -245,6 +245,10 @@ class Likelihood:
                 per_q[key] = (t.condition, t.played, [])
             per_q[key][2].append(t.answer)
         self.parts: list = []
+        #: per part (question), the condition index of each of its geometries, in order
+        self.conditions: list[list[int]] = []
+        #: per part, the question's name
+        self.questions: list[str] = []
         for name, per_q in groups.items():
             q = questions[name]
             opts = _answer_options(q)
@@ -269,6 +273,8 @@ class Likelihood:
             else:
                 part = _Count(q, model, geoms, counts)
             self.parts.append(part)
+            self.conditions.append([ci for ci, _ in per_q])
+            self.questions.append(name)
         self.kinds = {questions[n].kind for n in groups}
 
     def probabilities(self, values: dict[str, float], full: bool = True) -> list[np.ndarray]:
