@@ -28,7 +28,8 @@ SAME_SKIN = {"population": {"two_point_threshold_cv": 0.0, "integration_cv": 0.0
                             "intensity_levels_sd": 0.0}}
 
 
-@pytest.mark.parametrize("name", ["duration_interval_grid", "six_mode_ball", "whirlpool"])
+@pytest.mark.parametrize("name", ["duration_interval_grid", "six_mode_ball", "whirlpool",
+                                  "circle_vs_rectangle"])
 def test_the_probabilities_are_the_frequencies_of_the_model_s_answers(name):
     """Choices with and without an abstain option, ratings and counts: what the likelihood
     says of each answer is how often the model participant gives it (6,000 draws a
@@ -67,6 +68,43 @@ def test_the_likelihood_is_smooth_and_the_same_at_every_call():
     assert lik({**v, "efficiency": float(np.exp(x[3]))}) == ll[3]
     second = np.abs(np.diff(ll, 2))
     assert second.max() < 0.05 * (ll.max() - ll.min()) + 0.05
+
+
+@pytest.mark.parametrize("name", ["six_mode_ball", "letters", "whirlpool"])
+def test_several_parameter_vectors_at_once_are_each_one_s_likelihood(name):
+    """Likelihood.batch, which the fit's searches call with a point and its finite
+    differences: each row is the likelihood of that vector alone, whatever else is in
+    the batch (choices with and without abstaining, ratings, counts)."""
+    from vtexp.observer.likelihood import batch_values
+    setup = Setup.load(ROOT / "experiments" / f"{name}.yaml")
+    m = setup.model
+    lik = Likelihood(m, m.participant(0, "x", typical=True),
+                     simulated_trials(setup, simulate_participant(setup, 3, "b1")))
+    v = decision_values(m)
+    vectors = [v, {**v, "efficiency": 0.3, "lapse": 0.1},
+               {**v, "decision_noise": 2.5, "abstain_criterion": 0.2},
+               {**v, "rating_step": 0.5, "rating_bias": -0.7, "turns_sd": 1.3}]
+    together = lik.batch(batch_values(vectors))
+    alone = [lik(x) for x in vectors]
+    assert together == pytest.approx(alone, rel=1e-12, abs=1e-9)
+    assert len(set(np.round(alone, 6))) > 1          # the vectors do differ in likelihood
+
+
+def test_the_rating_step_and_the_turns_sd_are_recovered():
+    """A whirlpool participant (three sessions, 54 ratings and 54 counts) whose rating
+    criteria are 0.4 apart and whose counts of turns have an SD of 1.5, fitted from the
+    observer file's 1.0 and 0.5: each truth inside its interval, each start outside."""
+    path = ROOT / "experiments" / "whirlpool.yaml"
+    truth = Setup.load(path, overrides={"rating_step": 0.4, "turns_sd": 1.5})
+    rows = [r for ses in (1, 2, 3)
+            for r in simulate_participant(truth, 4, "w1", session=ses, typical=True)]
+    setup = Setup.load(path)
+    m = setup.model
+    lik = Likelihood(m, m.participant(0, "fit", typical=True), simulated_trials(setup, rows))
+    f = fit_participant(lik, ["rating_step", "turns_sd"], decision_values(m))
+    step, sd = f.params["rating_step"], f.params["turns_sd"]
+    assert step.identified and step.low <= 0.4 <= step.high and step.high < 1.0
+    assert sd.identified and sd.low <= 1.5 <= sd.high and sd.low > 0.5
 
 
 def test_known_parameters_are_recovered_within_their_intervals():

@@ -108,25 +108,45 @@ class _Choice:
         if self.abstain is None and geoms:
             g, j = np.nonzero(counts[:, self.cols] > 0)
             self.pairs = (g, j)
+        self._diffs: dict[bool, tuple] = {}
 
-    def _orthants(self, s, sd, c, g, j) -> np.ndarray:
-        """P(option j wins by c) for the (geometry g, template j) pairs."""
-        k = self.k
-        m = -(s * s)[:, None] * self.half                                  # mean of E, (M1)
-        C = (s * s)[:, None, None] * self.gram + sd * sd * np.eye(k)       # Cov(E), (M1)
-        o = self.others[j]                                                 # (P, n)
-        Cg = C[g]                                                          # (P, K, K)
-        rows = np.arange(len(g))[:, None]
-        c_oo = Cg[rows[:, :, None], o[:, :, None], o[:, None, :]]          # (P, n, n)
-        c_oj = Cg[rows, o, j[:, None]]                                     # (P, n)
-        c_jj = Cg[np.arange(len(g)), j, j][:, None, None]
-        cov = c_oo - c_oj[..., :, None] - c_oj[..., None, :] + c_jj        # Cov(E_i - E_j)
-        b = -c - (m[g[:, None], o] - m[g, j][:, None])                     # (P, n)
+    def _differences(self, answered: bool) -> tuple:
+        """What does not depend on the parameters, for the (geometry g, template j) pairs:
+        ``Cov(E_i - E_j)`` without ``s^2`` (its sensory part) and the differences of the
+        half squared distances, for every other template ``i``."""
+        if answered not in self._diffs:
+            if answered:
+                g, j = self.pairs
+            else:
+                g, j = (a.ravel() for a in np.meshgrid(np.arange(len(self.gram)),
+                                                       np.arange(self.k), indexing="ij"))
+            o = self.others[j]                                             # (P, n)
+            Gg = self.gram[g]                                              # (P, K, K)
+            rows = np.arange(len(g))[:, None]
+            g_oo = Gg[rows[:, :, None], o[:, :, None], o[:, None, :]]      # (P, n, n)
+            g_oj = Gg[rows, o, j[:, None]]                                 # (P, n)
+            g_jj = Gg[np.arange(len(g)), j, j][:, None, None]
+            sensory = g_oo - g_oj[..., :, None] - g_oj[..., None, :] + g_jj
+            n = o.shape[1]
+            late = np.eye(n) + np.ones((n, n))          # Cov of eta_i - eta_j, per sigma_d^2
+            dhalf = self.half[g[:, None], o] - self.half[g, j][:, None]    # (P, n)
+            self._diffs[answered] = (g, j, sensory, late, dhalf)
+        return self._diffs[answered]
+
+    def _orthants(self, s2, sd, c, answered: bool) -> np.ndarray:
+        """P(option j wins by c) for the (geometry g, template j) pairs, per parameter
+        vector: (B, P). ``s2``: (B, G) squared scale; ``sd``, ``c``: (B,)."""
+        g, j, sensory, late, dhalf = self._differences(answered)
+        s2g = s2[:, g]                                                     # (B, P)
+        # E_i - E_j = -s^2 (half_i - half_j) + noise, (M1): its covariance and mean
+        cov = s2g[..., None, None] * sensory + (sd * sd)[:, None, None, None] * late
+        b = -c[:, None, None] + s2g[..., None] * dhalf                     # (B, P, n)
         return _orthant(b, np.linalg.cholesky(cov), self.w)
 
-    def probabilities(self, v: dict[str, float], full: bool = False) -> np.ndarray:
-        """P(option) for each geometry, before the lapse: (geometries, options); without
-        an abstain option only of the options answered, unless ``full``.
+    def probabilities(self, v: dict[str, np.ndarray], full: bool = False) -> np.ndarray:
+        """P(option) for each parameter vector and geometry, before the lapse: (B,
+        geometries, options); without an abstain option only of the options answered,
+        unless ``full``. ``v``: each decision parameter as an array of B values.
 
         Option ``j`` is answered when ``E_i - E_j <= -c`` for every other template
         ``i``: a multivariate normal orthant of K - 1 dimensions, computed by Genz's
@@ -134,28 +154,29 @@ class _Choice:
         quasi-random points, exact for two templates and smooth in the parameters.
         """
         n_g, n_o = self.counts.shape
-        out = np.zeros((n_g, n_o))
+        nb = len(v["lapse"])
+        out = np.zeros((nb, n_g, n_o))
         k = self.k
         if k == 0 or (k == 1 and self.abstain is not None):
-            out[:, self.abstain if self.abstain is not None else 0] = 1.0
+            out[:, :, self.abstain if self.abstain is not None else 0] = 1.0
             return out
         if k == 1:
-            out[:, self.cols[0]] = 1.0
+            out[:, :, self.cols[0]] = 1.0
             return out
-        c = v["abstain_criterion"] if self.abstain is not None else 0.0
-        sd = max(v["decision_noise"], 1e-3)
-        s = self.scale * np.sqrt(v["efficiency"])                          # (G,)
+        c = v["abstain_criterion"] if self.abstain is not None else np.zeros(nb)
+        sd = np.maximum(v["decision_noise"], 1e-3)
+        s2 = (self.scale * self.scale)[None, :] * v["efficiency"][:, None]   # (B, G)
         if self.pairs is not None and not full:
             g, j = self.pairs
-            out[g, np.asarray(self.cols)[j]] = np.clip(self._orthants(s, sd, c, g, j), 0, 1)
+            out[:, g, np.asarray(self.cols)[j]] = np.clip(self._orthants(s2, sd, c, True),
+                                                          0, 1)
             return out
-        g, j = (a.ravel() for a in np.meshgrid(np.arange(n_g), np.arange(k), indexing="ij"))
-        pj = self._orthants(s, sd, c, g, j).reshape(n_g, k)
+        pj = self._orthants(s2, sd, c, False).reshape(nb, n_g, k)
         # Not renormalised without an abstain option (they sum to 1 within the quadrature's
         # error, about 1e-3), so that a trial's probability is the same either way.
         if self.abstain is not None:
-            out[:, self.abstain] = np.clip(1.0 - pj.sum(axis=1), 0.0, 1.0)
-        out[:, self.cols] = np.clip(pj, 0.0, 1.0)
+            out[:, :, self.abstain] = np.clip(1.0 - pj.sum(axis=2), 0.0, 1.0)
+        out[:, :, self.cols] = np.clip(pj, 0.0, 1.0)
         return out
 
 
@@ -191,18 +212,18 @@ class _Rating:
         self.scale = np.array([x.scale for x in geoms])
         self.spread = np.array([x.spread for x in geoms])
 
-    def probabilities(self, v: dict[str, float], full: bool = False) -> np.ndarray:
-        s = self.scale * np.sqrt(v["efficiency"])
+    def probabilities(self, v: dict[str, np.ndarray], full: bool = False) -> np.ndarray:
+        s = self.scale[None, :] * np.sqrt(v["efficiency"])[:, None]       # (B, G)
         mean = -s * s * self.dhalf                                         # E_high - E_low
-        var = s * s * self.var_xi + 2 * v["decision_noise"] ** 2
+        var = s * s * self.var_xi + 2 * (v["decision_noise"] ** 2)[:, None]
         d = s * self.spread
         d = np.where(d > 1e-12, d, 1.0)                                    # as the model divides
-        mu = mean / d + v["rating_bias"]                                   # (M2)
+        mu = mean / d + v["rating_bias"][:, None]                          # (M2)
         sd = np.maximum(np.sqrt(var) / d, 1e-9)
-        cuts = (np.arange(self.n - 1) - (self.n - 2) / 2) * v["rating_step"]
-        cdf = ndtr((cuts[None, :] - mu[:, None]) / sd[:, None])
-        cdf = np.concatenate([np.zeros((len(mu), 1)), cdf, np.ones((len(mu), 1))], axis=1)
-        return np.diff(cdf, axis=1)
+        cuts = (np.arange(self.n - 1) - (self.n - 2) / 2)[None, :] * v["rating_step"][:, None]
+        cdf = ndtr((cuts[:, None, :] - mu[..., None]) / sd[..., None])     # (B, G, n - 1)
+        edge = np.zeros((*mu.shape, 1))
+        return np.diff(np.concatenate([edge, cdf, edge + 1.0], axis=2), axis=2)
 
 
 class _Count:
@@ -213,13 +234,12 @@ class _Count:
         self.counts = counts
         self.turns = np.array([g.turns for g in geoms])
 
-    def probabilities(self, v: dict[str, float], full: bool = False) -> np.ndarray:
-        sd = max(v["turns_sd"], 1e-6)
+    def probabilities(self, v: dict[str, np.ndarray], full: bool = False) -> np.ndarray:
+        sd = np.maximum(v["turns_sd"], 1e-6)                                # (B,)
         edges = np.arange(self.lo, self.hi) + 0.5                           # between counts
-        cdf = ndtr((edges[None, :] - self.turns[:, None]) / sd)
-        cdf = np.concatenate([np.zeros((len(self.turns), 1)), cdf,
-                              np.ones((len(self.turns), 1))], axis=1)
-        return np.diff(cdf, axis=1)
+        cdf = ndtr((edges[None, None, :] - self.turns[None, :, None]) / sd[:, None, None])
+        edge = np.zeros((len(sd), len(self.turns), 1))
+        return np.diff(np.concatenate([edge, cdf, edge + 1.0], axis=2), axis=2)
 
 
 class Likelihood:
@@ -280,18 +300,33 @@ class Likelihood:
     def probabilities(self, values: dict[str, float], full: bool = True) -> list[np.ndarray]:
         """Per question: P(answer) of every geometry and option, lapses included (with
         ``full=False``, only of the answers given: the others are left at the floor)."""
-        lapse = values["lapse"]
+        return [p[0] for p in self._probabilities(batch_values([values]), full)]
+
+    def _probabilities(self, v: dict[str, np.ndarray], full: bool) -> list[np.ndarray]:
+        lapse = v["lapse"][:, None, None]
         out = []
         for part in self.parts:
-            p = np.maximum(part.probabilities(values, full), FLOOR)
-            out.append((1.0 - lapse) * p + lapse / p.shape[1])
+            p = np.maximum(part.probabilities(v, full), FLOOR)
+            out.append((1.0 - lapse) * p + lapse / p.shape[2])
         return out
 
     def __call__(self, values: dict[str, float]) -> float:
-        total = 0.0
-        for part, p in zip(self.parts, self.probabilities(values, full=False), strict=True):
-            total += float((part.counts * np.log(p)).sum())
+        return float(self.batch(batch_values([values]))[0])
+
+    def batch(self, values: dict[str, np.ndarray]) -> np.ndarray:
+        """The log-likelihood at B parameter vectors at once (each decision parameter an
+        array of B values, :func:`batch_values`): (B,). One call costs little more than
+        one vector's, since the arrays of a participant are small: a fit's finite
+        differences and scans are evaluated together."""
+        total = np.zeros(len(values["lapse"]))
+        for part, p in zip(self.parts, self._probabilities(values, full=False), strict=True):
+            total += (part.counts[None] * np.log(p)).sum(axis=(1, 2))
         return total
+
+
+def batch_values(vectors: list[dict[str, float]]) -> dict[str, np.ndarray]:
+    """Parameter vectors (dicts of the decision parameters) as one array per parameter."""
+    return {n: np.array([float(v[n]) for v in vectors]) for n in DECISION}
 
 
 def _answer_options(q) -> list[str]:
