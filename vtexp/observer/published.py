@@ -338,6 +338,14 @@ class AggregateLikelihood:
             total += float((k * np.log(p)).sum())
         return total
 
+    def batch(self, values: dict[str, np.ndarray]) -> np.ndarray:
+        """The log-likelihood at B parameter vectors (each parameter an array of B
+        values), as :meth:`~vtexp.observer.likelihood.Likelihood.batch`: one vector at a
+        time (a table's cells are few)."""
+        b = len(next(iter(values.values())))
+        return np.array([self({n: float(v[i]) for n, v in values.items()})
+                         for i in range(b)])
+
 
 # --------------------------------------------------------------------------- fitting
 
