@@ -450,8 +450,12 @@ def _profile(nll, u_hat, nll_hat, i, bounds, modes=(), target=None):
                 a, b = sorted((x0, x1))
                 if d0 > 0:
                     return x0
-                return brentq(lambda x: prof_at(x) - target, a, b,
-                              xtol=span * 1e-3)
+                # The ends as the walk found them: searched again from elsewhere, a point's
+                # profile can come out a little different, and the signs Brent's method
+                # needs would not be certain.
+                known = {x0: d0, x1: d1}
+                return brentq(lambda x: known[x] if x in known else prof_at(x) - target,
+                              a, b, xtol=span * 1e-3)
         return hi_b if direction > 0 else lo_b
 
     low, high = edge(-1), edge(1)
