@@ -398,6 +398,14 @@ def _profile(nll, u_hat, nll_hat, i, bounds, modes=(), target=None):
     lo_b, hi_b = bounds[i]
     span = hi_b - lo_b
     solved: dict[float, np.ndarray] = {float(u_hat[i]): u_hat.copy()}
+    far = 0.05 * _widest(bounds)
+    # The other local maxima, each followed along the walk from where its last search
+    # ended (not searched afresh from the fit's point at every step); a track whose search
+    # ends where another's did is dropped.
+    tracks: list[np.ndarray] = []
+
+    def distinct(x, among) -> bool:
+        return all(np.abs(x - y).max() > far for y in among)
 
     def prof_at(x: float) -> float:
         near = min(solved, key=lambda k: abs(k - x))
@@ -418,10 +426,17 @@ def _profile(nll, u_hat, nll_hat, i, bounds, modes=(), target=None):
                 scan = np.array([[v] for v in np.linspace(lo, hi, 9)] + starts)
                 starts = [scan[int(np.argmin(inner(scan)))]]
             else:
-                starts += [m[others] for m in modes
-                           if np.abs(m[others] - starts[0]).max() > 0.05 * _widest(bounds)]
-            r = min((_minimize(inner, w0, [bounds[j] for j in others], maxiter=100)
-                     for w0 in starts), key=lambda r: r.fun)
+                for t in tracks:
+                    if distinct(t, starts):
+                        starts.append(t)
+            found = [_minimize(inner, w0, [bounds[j] for j in others], maxiter=100)
+                     for w0 in starts]
+            r = min(found, key=lambda r: r.fun)
+            if len(others) > 1:
+                tracks.clear()
+                for f in found:
+                    if distinct(f.x, [r.x, *tracks]):
+                        tracks.append(np.array(f.x))
             u = warm.copy()
             u[i] = x
             u[others] = r.x
@@ -436,6 +451,7 @@ def _profile(nll, u_hat, nll_hat, i, bounds, modes=(), target=None):
     right = np.flatnonzero(grid > u_hat[i])
     left = np.flatnonzero(grid <= u_hat[i])[::-1]
     for idx in (right, left):          # outward from the estimate, each way
+        tracks[:] = [m[others].copy() for m in modes]
         for k in idx:
             values[k] = prof_at(float(grid[k]))
     drop = values - target                                    # > 0: outside the interval
