@@ -11,9 +11,10 @@ the population's typical ones, which is what the fit holds fixed: the fitted mod
 the model that made the data. By default each study is fitted for every decision
 parameter its answers depend on (``STUDY_PARAMS``: efficiency, decision noise and lapse
 everywhere; the abstain criterion where a question has an abstain option; the rating
-step and bias where one is rated; the turns' SD where turns are counted). A percept parameter in ``--params`` (``integration_ms``,
-``two_point_threshold_mm``) varies between participants as the default population
-draws it (in 5 bins), and is fitted on its grid of percepts. Each participant is fitted back
+step and bias where one is rated; the turns' SD where turns are counted). A percept
+parameter in ``--params`` (``integration_ms``, ``two_point_threshold_mm``) varies between
+participants as the default population draws it (in 5 bins), and is fitted on its grid
+of percepts. Each participant is fitted back
 (``vtexp observer fit``'s own path, the parameters of ``--params``), and each pilot's
 population (``vtexp.observer.fit.population``). Reported per study and parameter:
 
@@ -323,8 +324,8 @@ def print_power(power: list[dict]) -> None:
           f"({BEFORE.name}) and after (default.yaml):")
     print(f"{'study':22} {'N':>3} {'effect':48} {'before':>7} {'after':>7}")
     for r in power:
-        print(f"{r['study']:22} {r['n']:3d} {r['effect']:48} {r.get('before', float('nan')):7.3f} "
-              f"{r.get('after', float('nan')):7.3f}")
+        before, after = r.get("before", float("nan")), r.get("after", float("nan"))
+        print(f"{r['study']:22} {r['n']:3d} {r['effect']:48} {before:7.3f} {after:7.3f}")
 
 
 def main() -> None:

@@ -331,8 +331,8 @@ def fit_percept_participant(liks: list[Likelihood], name: str, values: list[floa
 #: The finite-difference step of the searches (on the search scale).
 FD_STEP = 1e-5
 #: A search stops when a step gains less than this share of the log-likelihood (about
-#: 1e-4 of a participant's 60-100 log units; scipy's default, 2.2e-9, took 30 % more
-#: evaluations for changes far below the 1.92 an interval's edge is cut at).
+#: 1e-4 of a participant's 60-100 log units; scipy's default, 2.2e-9, took up to 40 %
+#: more evaluations for changes far below the 1.92 an interval's edge is cut at).
 FTOL = 1e-6
 
 
