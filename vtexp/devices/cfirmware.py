@@ -314,7 +314,8 @@ class AvrSimulator(_Process):
     profile:
         Which build (``pad_20x20``, ``vest_6x8``, ``sma_5x5``).
     trace:
-        Where the harness writes its trace (a temporary file if None; ``trace_path``).
+        Where the harness writes its trace (if None, a temporary file, removed when this
+        object is collected or at exit; ``trace_path``).
     faults:
         ``(drop, corrupt, insert)`` probabilities per byte, both directions.
     seed:
