@@ -138,7 +138,8 @@ def pilot(args) -> dict:
     pop = population([f for _, f in got], names, setup_of(study, tuple(names)).model.params)
     return {"rows": [r for rows, _ in got for r in rows], "population": pop.values,
             "spreads": pop.spreads, "intervals": {k: list(v) for k, v in pop.intervals.items()},
-            "not_identified": list(pop.not_identified)}
+            "chi2_intervals": {k: list(v) for k, v in pop.chi2_intervals.items()},
+            "not_identified": list(pop.not_identified), "dataset": d}
 
 
 def eval_baseline(study: str, seconds: float = 3.0) -> dict:
@@ -185,11 +186,16 @@ def summarise(rows: list[dict], pops: list[dict], names: list[str], study: str) 
         centre = [p["population"].get(name) for p in mine]
         centre = [c for c in centre if c is not None]
         true_centre = mine[0]["true_centre"].get(name, float("nan")) if mine else float("nan")
-        held = [p["intervals"][name] for p in mine if name in p.get("intervals", {})]
-        pop_cover = (float(np.mean([lo - 1e-9 <= true_centre <= hi + 1e-9 for lo, hi in held]))
-                     if held else float("nan"))
-        pop_width = (float(np.median([math.log10(hi / lo) if spec.log and lo > 0 else hi - lo
-                                      for lo, hi in held])) if held else float("nan"))
+        def cover_width(key):
+            held = [p[key][name] for p in mine if name in p.get(key, {})]
+            if not held:
+                return held, float("nan"), float("nan")
+            return (held,
+                    float(np.mean([lo - 1e-9 <= true_centre <= hi + 1e-9 for lo, hi in held])),
+                    float(np.median([math.log10(hi / lo) if spec.log and lo > 0 else hi - lo
+                                     for lo, hi in held])))
+        held, pop_cover, pop_width = cover_width("intervals")
+        held2, pop_cover2, pop_width2 = cover_width("chi2_intervals")
         if centre and true_centre and spec.log:
             cerr = np.array([math.log10(c / true_centre) for c in centre])
         else:
@@ -209,7 +215,10 @@ def summarise(rows: list[dict], pops: list[dict], names: list[str], study: str) 
                     "population_intervals": len(held),
                     "population_identified": len(held) / max(len(mine), 1),
                     "population_median_width": pop_width,
-                    "population_coverage": pop_cover})
+                    "population_coverage": pop_cover,
+                    "population_identified_chi2": len(held2) / max(len(mine), 1),
+                    "population_median_width_chi2": pop_width2,
+                    "population_coverage_chi2": pop_cover2})
     return out
 
 
@@ -233,14 +242,16 @@ def recovery(study: str, names: list[str], args) -> tuple[list[dict], list[dict]
     # them, as vtexp observer fit --workers fits them (fresh processes: their start and
     # the experiment's preparation included); then the other pilots.
     t0 = time.perf_counter()
-    one = pilot((study, 0, args.participants, names))
+    one = pilot((study, args.first, args.participants, names))
     serial = time.perf_counter() - t0
     parallel = float("nan")
-    jobs = [(study, d, args.participants, names) for d in range(1, args.datasets)]
+    jobs = [(study, d, args.participants, names)
+            for d in range(args.first + 1, args.first + args.datasets)]
     t0 = time.perf_counter()
     if args.workers > 1:
         with ProcessPoolExecutor(args.workers) as pool:
-            list(pool.map(fit_one, [(study, 0, i, names) for i in range(args.participants)]))
+            list(pool.map(fit_one, [(study, args.first, i, names)
+                                    for i in range(args.participants)]))
         parallel = time.perf_counter() - t0
         t0 = time.perf_counter()
         with ProcessPoolExecutor(args.workers) as pool:
@@ -255,7 +266,8 @@ def recovery(study: str, names: list[str], args) -> tuple[list[dict], list[dict]
     pilots_s = time.perf_counter() - t0
     pilots = [one, *rest]
     centres = true_centres(setup, names)
-    pops = [{"study": study, "population": p["population"], "intervals": p["intervals"],
+    pops = [{"study": study, "dataset": p["dataset"], "population": p["population"],
+             "intervals": p["intervals"], "chi2_intervals": p["chi2_intervals"],
              "true_centre": centres} for p in pilots]
     rows = [r for p in pilots for r in p["rows"]]
     per = [r["seconds"] for r in rows if r["param"] == names[0]]
@@ -268,7 +280,7 @@ def recovery(study: str, names: list[str], args) -> tuple[list[dict], list[dict]
               "pilots_per_minute": (args.datasets - 1) / pilots_s * 60
               if args.datasets > 1 else float("nan"),
               "workers": args.workers, **base}
-    return rows, summarise(rows, pops, names, study), timing
+    return rows, summarise(rows, pops, names, study), timing, pops
 
 
 def power_before_after(study: str, studies: int) -> list[dict]:
@@ -293,13 +305,13 @@ def print_recovery(summary, timing, args) -> None:
           "study (95 % profile-likelihood intervals; scale parameters in log10 ratios)")
     print(f"{'study':22} {'param':22} {'ident.':>6} {'bias':>7} {'RMSE':>6} {'width':>6} "
           f"{'cover':>6} | {'centre bias':>11} {'RMSE':>6} {'ident.':>6} {'width':>6} "
-          f"{'cover':>6}")
+          f"{'cover':>6} {'chi2 cover':>10}")
     for s in summary:
         print(f"{s['study']:22} {s['param']:22} {s['identified']:6.2f} {s['bias']:+7.3f} "
               f"{s['rmse']:6.3f} {s['median_width']:6.3f} {s['coverage']:6.2f} | "
               f"{s['population_bias']:+11.3f} {s['population_rmse']:6.3f} "
               f"{s['population_identified']:6.2f} {s['population_median_width']:6.3f} "
-              f"{s['population_coverage']:6.2f}")
+              f"{s['population_coverage']:6.2f} {s['population_coverage_chi2']:10.2f}")
     print("\nTime (fits of every participant, all profiles included):")
     print(f"{'study':22} {'trials':>6} {'params':>6} {'s/participant':>13} {'p95':>6} "
           f"{'pilot, 1 proc':>13} {f'on {args.workers}':>6} {'pilots/min':>10} "
@@ -328,6 +340,32 @@ def print_power(power: list[dict]) -> None:
         print(f"{r['study']:22} {r['n']:3d} {r['effect']:48} {before:7.3f} {after:7.3f}")
 
 
+def merge(args) -> None:
+    """Runs split over processes (``--first``), summarised as one."""
+    docs = [json.loads(Path(f).read_text(encoding="utf-8")) for f in args.merge]
+    fits = [r for d in docs for r in d["fits"]]
+    pilots = [p for d in docs for p in d.get("pilots", [])]
+    keys = [(p["study"], p["dataset"]) for p in pilots]
+    if len(set(keys)) != len(keys):
+        raise SystemExit("the runs share pilots: give each its own --first")
+    summary = []
+    for study in dict.fromkeys(r["study"] for r in fits):
+        names = list(dict.fromkeys(r["param"] for r in fits if r["study"] == study))
+        summary.extend(summarise(fits, pilots, names, study))
+    timing = [t for d in docs for t in d["timing"]]
+    args.datasets = len(pilots) // max(len({p["study"] for p in pilots}), 1)
+    args.participants = docs[0]["participants"]
+    print_recovery(summary, timing, args)
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({
+        "datasets": args.datasets, "participants": args.participants,
+        "params": docs[0]["params"], "merged": list(map(str, args.merge)),
+        "summary": summary, "timing": timing, "power": [], "fits": fits, "pilots": pilots,
+        "machine": docs[0]["machine"]}, indent=2), encoding="utf-8")
+    print(f"wrote {out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--datasets", type=int, default=20)
@@ -338,16 +376,24 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--power", type=int, default=0, metavar="M",
                     help="also the power before/after from M simulated studies per study")
+    ap.add_argument("--first", type=int, default=0, metavar="D0",
+                    help="number the pilots from D0 (to split one run over processes)")
+    ap.add_argument("--merge", nargs="+", metavar="JSON",
+                    help="summarise the fits of these runs' JSON files together (pilots "
+                         "numbered apart with --first) and write --json")
     ap.add_argument("--json", default=str(ROOT / "bench" / "results" / "observer.json"))
     args = ap.parse_args()
     studies = args.studies.split(",")
     t_all = time.perf_counter()
-    results, summary, timing, power = [], [], [], []
+    if args.merge:
+        return merge(args)
+    results, summary, timing, power, pilots = [], [], [], [], []
     for study in studies:
         if args.datasets > 0:
             names = (STUDY_PARAMS[study] if args.params == "study" else args.params).split(",")
-            rows, summ, tim = recovery(study, names, args)
+            rows, summ, tim, pops = recovery(study, names, args)
             results.extend(rows)
+            pilots.extend(pops)
             summary.extend(summ)
             timing.append(tim)
         if args.power > 0 and study in PAPER_N:
@@ -361,7 +407,8 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({
         "datasets": args.datasets, "participants": args.participants, "params": args.params,
-        "summary": summary, "timing": timing, "power": power, "fits": results,
+        "first": args.first, "summary": summary, "timing": timing, "power": power,
+        "fits": results, "pilots": pilots,
         "machine": {"python": platform.python_version(), "platform": platform.platform(),
                     "numpy": np.__version__}}, indent=2), encoding="utf-8")
     print(f"wrote {out}")

@@ -127,6 +127,38 @@ def test_known_parameters_are_recovered_within_their_intervals():
     assert inside >= 5
 
 
+def test_the_population_centre_s_interval_is_the_t_interval_for_a_normal_sample():
+    """Participants whose log efficiencies are known to within 0.15 (a Gaussian profile)
+    and spread well beyond that: the population is a normal sample, whose centre's exact
+    95 % interval is the one-sample t interval. The small-sample cut gives it (within
+    the grids' resolution); the chi-square cut is narrower, as for few participants it
+    should not be (the reason for the cut)."""
+    from scipy.stats import t as student
+
+    from vtexp.observer.fit import (
+        HALF_CHI2, ParameterFit, ParticipantFit, centre_cut, population, spec_of)
+    assert centre_cut(4) == pytest.approx(2.952, abs=1e-3)
+    assert centre_cut(3) == pytest.approx(3.492, abs=1e-3)
+    assert centre_cut(10_000) == pytest.approx(HALF_CHI2, abs=1e-3)
+    spec = spec_of("efficiency")
+    u = np.linspace(*spec.bounds_u, 2001)
+    logs = np.array([-3.4, -2.9, -2.1, -1.6, -2.6])
+    for n in (4, 5):
+        fits = [ParticipantFit(f"p{i}", 60, 0.0, {"efficiency": ParameterFit(
+            "efficiency", float(np.exp(m)), 0.0, 0.0, True, grid=list(np.exp(u)),
+            profile=list(-0.5 * ((u - m) / 0.15) ** 2))}, 1.0, 1)
+            for i, m in enumerate(logs[:n])]
+        pop = population(fits, ["efficiency"])
+        x = logs[:n]
+        half = student.ppf(0.975, n - 1) * x.std(ddof=1) / np.sqrt(n)
+        lo, hi = np.log(pop.intervals["efficiency"])
+        assert np.log(pop.values["efficiency"]) == pytest.approx(x.mean(), abs=0.01)
+        assert lo == pytest.approx(x.mean() - half, abs=0.03)
+        assert hi == pytest.approx(x.mean() + half, abs=0.03)
+        clo, chi = np.log(pop.chi2_intervals["efficiency"])
+        assert chi - clo < 0.8 * (hi - lo)
+
+
 def test_the_integration_time_is_recovered_on_its_grid():
     """The back's integration time, the parameter seed 001's 0.1 s collapse asks about: a
     participant of the duration/interval study (two sessions) whose percept integrates

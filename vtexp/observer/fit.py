@@ -341,7 +341,6 @@ def _minimize(nll_rows, x0, bounds, *, maxiter: int):
     array) within ``bounds``: each gradient is the forward difference of step FD_STEP
     (backward at an upper bound), as scipy's own, with the point and its k neighbours
     evaluated in one call of the likelihood (:meth:`Likelihood.batch`)."""
-    lo = np.array([b[0] for b in bounds])
     hi = np.array([b[1] for b in bounds])
 
     def fun_grad(x):
@@ -365,9 +364,6 @@ def _widest(bounds) -> float:
 _SPREAD_MAX = {"efficiency_cv": 3.0, "decision_noise_cv": 3.0, "lapse_logit_sd": 5.0,
                "integration_cv": 2.0, "two_point_threshold_cv": 2.0,
                "rating_bias_sd": 5.0}
-
-#: Gauss-Hermite points of a population's marginal likelihood.
-GH_POINTS = 48
 
 #: The smallest spread a population fit considers (on the scale the parameter varies on).
 TAU_MIN = 0.02
@@ -651,6 +647,9 @@ class Population:
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
     #: parameters whose population centre these data do not identify
     not_identified: list[str] = field(default_factory=list)
+    #: the same intervals cut at the large-sample chi-square (3.84 / 2) for every
+    #: parameter, kept to show what the small-sample cut (:func:`centre_cut`) changes
+    chi2_intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 def _base_tau(name: str, base) -> float | None:
@@ -687,6 +686,7 @@ def population(fits: list[ParticipantFit], names: list[str], base=None) -> Popul
     """
     values, spreads, used, notes = {}, {}, {}, []
     intervals: dict[str, tuple[float, float]] = {}
+    chi2_intervals: dict[str, tuple[float, float]] = {}
     unknown: list[str] = []
     for n in names:
         spec = spec_of(n)
@@ -708,31 +708,29 @@ def population(fits: list[ParticipantFit], names: list[str], base=None) -> Popul
             if lo_c <= u[0] and hi_c >= u[-1]:
                 unknown.append(n)
             else:
-                intervals[n] = (spec.from_u(lo_c), spec.from_u(hi_c))
+                intervals[n] = chi2_intervals[n] = (spec.from_u(lo_c), spec.from_u(hi_c))
             continue
-        grids = [np.array([spec.to_u(g) for g in p.grid]) for p in ps]
-        profs = [np.array(p.profile) for p in ps]
-        z, w = np.polynomial.hermite_e.hermegauss(GH_POINTS)
-        w = w / w.sum()
-        if n == "lapse":        # the scale the population varies on, and back
+        if n == "lapse":        # the scale the population varies on
             t = np.log(np.clip(x, 1e-4, None) / (1 - np.clip(x, None, 1 - 1e-4)))
-            to_x = lambda tt: 1 / (1 + np.exp(-tt))                     # noqa: E731
+            nodes = np.linspace(float(t.min()), float(t.max()), MARGINAL_POINTS)
+            at = 1 / (1 + np.exp(-nodes))
         else:
             t = u
-            to_x = (lambda tt: np.exp(tt)) if spec.log else (lambda tt: tt)  # noqa: E731
+            nodes = np.linspace(lo_u, hi_u, MARGINAL_POINTS)
+            at = nodes
+        # Each participant's likelihood at the nodes (their profile, linear between its
+        # own points on the scale it was fitted on)
+        lik = np.exp(np.array([np.interp(at, [spec.to_u(g) for g in p.grid], p.profile)
+                               for p in ps]))
 
-        def neg_marginal(theta, centred=(n == "rating_bias"), to_x=to_x, grids=grids,
-                         profs=profs, lo=lo_u, hi=hi_u, z=z, w=w):
-            # Gauss-Hermite over the population's normal: exact for any spread however
-            # narrow, where a fixed grid over the range misses a narrow one.
+        def neg_marginal(theta, centred=(n == "rating_bias"), nodes=nodes, lik=lik):
+            # Each likelihood, linear between the nodes (and its end value beyond them),
+            # integrated exactly against the population's normal: right for a spread
+            # however narrow or wide against the profiles' own width.
             mu = 0.0 if centred else theta[0]
             tau = math.exp(theta[-1])
-            xs = to_x(mu + tau * z)
-            us = np.clip(np.log(xs) if spec.log else xs, lo, hi)
-            total = 0.0
-            for g, pr in zip(grids, profs, strict=True):
-                total += math.log(max(float(w @ np.exp(np.interp(us, g, pr))), 1e-300))
-            return -total
+            marginal = lik @ _normal_weights(nodes, mu, tau)
+            return -float(np.log(np.maximum(marginal, 1e-300)).sum())
         centred = n == "rating_bias"
         tau_lo = math.log(TAU_MIN)
         tau_hi = math.log(max(float(t.max() - t.min()), 0.1))
@@ -784,14 +782,19 @@ def population(fits: list[ParticipantFit], names: list[str], base=None) -> Popul
         elif not centred:
             values[n] = spec.from_u(mu)
         if not centred:
-            lo_t, hi_t = _centre_interval(neg_marginal, mu, tau, t_min, float(t.max()),
-                                          tau_lo, tau_hi,
-                                          fixed_tau=None if keep is None else tau)
+            # The spread estimated from these participants: the small-sample cut; the
+            # observer file's spread kept: it is known, and the chi-square is exact.
+            half = HALF_CHI2 if keep is not None else centre_cut(len(ps))
+            (lo_t, hi_t), chi2 = _centre_interval(
+                neg_marginal, mu, tau, t_min, float(t.max()), tau_lo, tau_hi,
+                fixed_tau=None if keep is None else tau, halves=(half, HALF_CHI2))
+            back = (lambda tt: 1 / (1 + math.exp(-tt))) if n == "lapse" else spec.from_u
             if lo_t <= t_min and hi_t >= float(t.max()):
                 unknown.append(n)
             else:
-                back = (lambda tt: 1 / (1 + math.exp(-tt))) if n == "lapse" else spec.from_u
                 intervals[n] = (float(back(lo_t)), float(back(hi_t)))
+            if not (chi2[0] <= t_min and chi2[1] >= float(t.max())):
+                chi2_intervals[n] = (float(back(chi2[0])), float(back(chi2[1])))
         if keep is not None:
             continue
         spread = math.sqrt(math.expm1(tau * tau)) if spec.log else tau
@@ -800,15 +803,41 @@ def population(fits: list[ParticipantFit], names: list[str], base=None) -> Popul
                          f"an observer file holds; written as {_SPREAD_MAX[spec.spread]:g}")
             spread = _SPREAD_MAX[spec.spread]
         spreads[spec.spread] = spread
-    return Population(values, spreads, used, notes, intervals, unknown)
+    return Population(values, spreads, used, notes, intervals, unknown, chi2_intervals)
 
 
-def _cut_interval(x: np.ndarray, nll: np.ndarray, best: float) -> tuple[float, float]:
-    """Where the negative log-likelihood ``nll`` (on the grid ``x``) rises by HALF_CHI2
+#: Nodes of the integral of a participant's likelihood against the population's normal.
+MARGINAL_POINTS = 801
+
+
+def _normal_weights(nodes: np.ndarray, mu: float, tau: float) -> np.ndarray:
+    """Weights ``w`` such that ``f @ w`` is the integral of ``f`` (linear between the
+    evenly spaced ``nodes``, constant beyond them) against the normal density N(mu, tau^2),
+    exactly: on the segment from a to b, with z = (u - mu) / tau,
+    int (f_a + (f_b - f_a)(u - a)/h) phi_tau(u - mu) du = f_a (dPhi - c) + f_b c, where
+    c = ((mu - a) dPhi + tau (phi(z_a) - phi(z_b))) / h."""
+    from scipy.special import ndtr
+    z = (nodes - mu) / tau
+    cdf = ndtr(z)
+    pdf = np.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
+    h = float(nodes[1] - nodes[0])
+    d = np.diff(cdf)
+    c = ((mu - nodes[:-1]) * d + tau * (pdf[:-1] - pdf[1:])) / h
+    w = np.zeros(len(nodes))
+    w[:-1] += d - c
+    w[1:] += c
+    w[0] += cdf[0]
+    w[-1] += 1.0 - cdf[-1]
+    return w
+
+
+def _cut_interval(x: np.ndarray, nll: np.ndarray, best: float,
+                  half: float = HALF_CHI2) -> tuple[float, float]:
+    """Where the negative log-likelihood ``nll`` (on the grid ``x``) rises by ``half``
     above ``best`` on each side of its minimum, interpolated linearly between the grid's
     points; the grid's end when it never rises so far."""
     best = min(best, float(nll.min()))
-    cut = best + HALF_CHI2
+    cut = best + half
     k = int(np.argmin(nll))
 
     def edge(direction: int) -> float:
@@ -827,17 +856,40 @@ def _cut_interval(x: np.ndarray, nll: np.ndarray, best: float) -> tuple[float, f
 CENTRE_POINTS = 81
 
 
+def centre_cut(n: int, level: float = 0.95) -> float:
+    """The drop of the log-likelihood that cuts a population centre's ``level`` interval
+    when its spread is estimated from ``n`` participants.
+
+    For a normal sample with unknown variance the profile log-likelihood of the mean is
+    ``-n/2 log(s2 + (xbar - mu)^2)`` (``s2`` the maximum-likelihood variance), so the
+    likelihood-ratio statistic is exactly ``W = n log(1 + T^2 / (n - 1))``, T the
+    one-sample t, and the interval
+    with exact coverage is the one where ``W / 2`` stays under
+    ``n / 2 log(1 + t^2_{(1+level)/2, n-1} / (n - 1))``: 2.95 for 4 participants, 3.49
+    for 3, 2.25 for 10, where the chi-square's 1.92 holds only for many. Participants
+    whose own profiles are wide make the spread partly known, where this cut is
+    conservative.
+    """
+    from scipy.stats import chi2, t
+    if n < 2:
+        return float(chi2.ppf(level, 1) / 2)
+    q = float(t.ppf((1 + level) / 2, n - 1))
+    return n / 2 * math.log1p(q * q / (n - 1))
+
+
 def _centre_interval(neg_marginal, mu: float, tau: float, t_lo: float, t_hi: float,
-                     tau_lo: float, tau_hi: float, fixed_tau: float | None = None
-                     ) -> tuple[float, float]:
+                     tau_lo: float, tau_hi: float, fixed_tau: float | None = None,
+                     halves: tuple[float, ...] = (HALF_CHI2,)
+                     ) -> list[tuple[float, float]]:
     """The 95 % interval of a population's centre ``mu``: its profile likelihood.
 
     The population's marginal likelihood (the one :func:`population` maximises) is
     profiled over the centre: at each of CENTRE_POINTS values of ``mu`` over its range
     (the scale the parameter varies on) the spread is maximised again (or held at
     ``fixed_tau`` when the fit kept the observer file's spread), and the interval is
-    where that profile is within HALF_CHI2 (3.84 / 2, likelihood ratio, chi-square
-    with one degree of freedom) of its maximum. The spread's own uncertainty is
+    where that profile is within each of ``halves`` of its maximum (one interval per
+    cut: HALF_CHI2, 3.84 / 2, is the likelihood ratio's chi-square with one degree of
+    freedom; :func:`centre_cut` the small-sample cut). The spread's own uncertainty is
     thereby taken into account (profiled out), which a Wald interval from the
     curvature at the maximum would not; with four participants it matters.
     """
@@ -853,7 +905,7 @@ def _centre_interval(neg_marginal, mu: float, tau: float, t_lo: float, t_hi: flo
 
     values = np.array([prof(float(m)) for m in grid])
     best = float(neg_marginal([mu, math.log(tau)]))
-    return _cut_interval(grid, values, best)
+    return [_cut_interval(grid, values, best, h) for h in halves]
 
 
 
@@ -907,7 +959,9 @@ def fitted_record(pop: Population, names: list[str], participants: int, *,
               for n in names if n in pop.intervals and n in pop.values}
     out: dict = {"by": "vtexp observer fit",
                  "interval": "95 % profile likelihood of the population centre "
-                             "(likelihood ratio, 3.84 / 2)",
+                             "(likelihood ratio; cut at n/2 log(1 + t^2/(n-1)) for the n "
+                             "participants who identify it, or at 3.84 / 2 where the "
+                             "spread is the observer file's)",
                  "participants": participants, "params": params,
                  "not_identified": [n for n in names if n in pop.not_identified]}
     if site is not None and "two_point_threshold_mm" in params:

@@ -182,22 +182,38 @@ class _Choice:
 
 def _orthant(b: np.ndarray, L: np.ndarray, w: np.ndarray) -> np.ndarray:
     """P(Y <= b) for Y ~ N(0, L L^T), over the leading axes of ``b`` (..., n) and ``L``
-    (..., n, n), by separation of variables over the fixed uniforms ``w`` (Q, >= n - 1)."""
+    (..., n, n), by separation of variables over the fixed uniforms ``w`` (Q, >= n - 1).
+
+    Dimension d's conditional mean given the earlier draws is one stacked matrix
+    product (``L[d, :d] @ y[:d]`` for every orthant and point at once); the draws are
+    kept by dimension so that each step writes and reads contiguous rows.
+    """
     n = b.shape[-1]
-    diag = np.diagonal(L, axis1=-2, axis2=-1)                              # (..., n)
-    e = ndtr(b[..., 0] / diag[..., 0])                                     # (...)
+    lead = b.shape[:-1]
+    m = int(np.prod(lead, dtype=np.int64))
+    b2 = b.reshape(m, n)
+    L2 = L.reshape(m, n, n)
+    inv = 1.0 / np.diagonal(L2, axis1=-2, axis2=-1)                        # (M, n)
+    e = ndtr(b2[:, 0] * inv[:, 0])                                         # (M,)
     if n == 1:
-        return e
+        return e.reshape(lead)
     q = w.shape[0]
-    f = np.broadcast_to(e[..., None], (*e.shape, q)).copy()                # (..., Q)
-    ys = np.zeros((*e.shape, q, n - 1))
+    f = np.repeat(e[:, None], q, axis=1)                                   # (M, Q)
     e = f.copy()
+    ys = np.empty((m, n - 1, q))
+    wt = np.ascontiguousarray(w.T)
+    rows = L2[:, :, None, :]                                               # (M, n, 1, n)
     for d in range(1, n):
-        ys[..., d - 1] = ndtri(np.clip(w[:, d - 1] * e, 1e-300, 1 - 1e-16))
-        mu = np.einsum("...e,...qe->...q", L[..., d, :d], ys[..., :d])
-        e = ndtr((b[..., d, None] - mu) / diag[..., d, None])
+        y = ys[:, d - 1]
+        np.multiply(wt[d - 1], e, out=y)
+        np.maximum(y, 1e-300, out=y)          # w < 1 and e <= 1: only 0 needs a floor
+        ndtri(y, out=y)
+        mu = np.matmul(rows[:, d, :, :d], ys[:, :d])[:, 0]                 # (M, Q)
+        np.subtract(b2[:, d, None], mu, out=e)
+        e *= inv[:, d, None]
+        ndtr(e, out=e)
         f *= e
-    return f.mean(axis=-1)
+    return f.mean(axis=-1).reshape(lead)
 
 
 class _Rating:
