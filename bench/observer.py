@@ -26,7 +26,9 @@ population (``vtexp.observer.fit.population``). Reported per study and parameter
   the coverage of its 95 % interval (the ``fitted:`` section ``vtexp observer fit``
   writes): the share of pilots whose interval holds the true centre, over the pilots
   whose centre is identified (a pilot whose centre is not identified keeps the observer
-  file's value, which is the truth here).
+  file's value, which is the truth here); the centre's interval as ``vtexp observer
+  fit`` cuts it (``centre_cut``: the t interval's cut for the participants who estimate
+  the spread) and, beside it ("chi2 cover"), cut at the large-sample 3.84 / 2.
 
 Time. Fit time per participant (all profiles included) and per pilot in one process;
 one pilot fitted with ``--workers`` processes, as ``vtexp observer fit --workers``
@@ -43,8 +45,12 @@ SMA pin heating) and after (the default observer): each declared effect's power.
 
 Prints tables and writes JSON to bench/results/observer.json (``--json`` elsewhere).
 Usage: python bench/observer.py [--datasets D] [--participants N] [--studies a,b]
-       [--params study|efficiency,lapse] [--workers W] [--power M] [--json FILE]
-``--datasets 0`` skips recovery and timing.
+       [--params study|efficiency,lapse] [--workers W] [--power M] [--first D0]
+       [--json FILE]
+       python bench/observer.py --merge A.json B.json [--json FILE]
+``--datasets 0`` skips recovery and timing. One long run split over processes: pilots
+numbered from ``--first`` in each (e.g. ``--datasets 100 --first 0`` and ``--datasets 100
+--first 100``), then ``--merge`` their JSON files for the table of all of them.
 """
 
 from __future__ import annotations

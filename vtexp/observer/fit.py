@@ -14,7 +14,10 @@ estimate is reported. The participants' estimates make the population
 observer file (:func:`observer_yaml`) that ``vtexp simulate --observer`` takes.
 The population's centre gets a 95 % interval too, from the same population
 likelihood: its profile over the centre (the spread maximised again at each value),
-cut at 3.84 / 2 below its maximum (:func:`_centre_interval`). The file records it,
+cut where a normal sample's would give the t interval for the participants who
+estimate the spread (:func:`centre_cut`: 2.95 below the maximum for four), or at
+3.84 / 2 where the spread is the observer file's (:func:`_centre_interval`). The file
+records it,
 with the parameters whose centre is not identified, in its ``fitted:`` section
 (:func:`fitted_record`), so that ``vtexp simulate`` can report power over it.
 
@@ -863,9 +866,8 @@ def centre_cut(n: int, level: float = 0.95) -> float:
     For a normal sample with unknown variance the profile log-likelihood of the mean is
     ``-n/2 log(s2 + (xbar - mu)^2)`` (``s2`` the maximum-likelihood variance), so the
     likelihood-ratio statistic is exactly ``W = n log(1 + T^2 / (n - 1))``, T the
-    one-sample t, and the interval
-    with exact coverage is the one where ``W / 2`` stays under
-    ``n / 2 log(1 + t^2_{(1+level)/2, n-1} / (n - 1))``: 2.95 for 4 participants, 3.49
+    one-sample t, and the interval with exact coverage is the one where ``W / 2`` stays
+    under ``n / 2 log(1 + t^2_{(1+level)/2, n-1} / (n - 1))``: 2.95 for 4 participants, 3.49
     for 3, 2.25 for 10, where the chi-square's 1.92 holds only for many. Participants
     whose own profiles are wide make the spread partly known, where this cut is
     conservative.
