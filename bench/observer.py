@@ -346,6 +346,13 @@ def print_power(power: list[dict]) -> None:
         print(f"{r['study']:22} {r['n']:3d} {r['effect']:48} {before:7.3f} {after:7.3f}")
 
 
+def write_json(path: str, doc: dict) -> None:
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(doc, indent=2), encoding="utf-8")
+    print(f"wrote {out}")
+
+
 def merge(args) -> None:
     """Runs split over processes (``--first``), summarised as one."""
     docs = [json.loads(Path(f).read_text(encoding="utf-8")) for f in args.merge]
@@ -362,14 +369,11 @@ def merge(args) -> None:
     args.datasets = len(pilots) // max(len({p["study"] for p in pilots}), 1)
     args.participants = docs[0]["participants"]
     print_recovery(summary, timing, args)
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({
+    write_json(args.json, {
         "datasets": args.datasets, "participants": args.participants,
         "params": docs[0]["params"], "merged": list(map(str, args.merge)),
         "summary": summary, "timing": timing, "power": [], "fits": fits, "pilots": pilots,
-        "machine": docs[0]["machine"]}, indent=2), encoding="utf-8")
-    print(f"wrote {out}")
+        "machine": docs[0]["machine"]})
 
 
 def main() -> None:
@@ -409,15 +413,12 @@ def main() -> None:
     if power:
         print_power(power)
     print(f"total {time.perf_counter() - t_all:.0f} s")
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({
+    write_json(args.json, {
         "datasets": args.datasets, "participants": args.participants, "params": args.params,
         "first": args.first, "summary": summary, "timing": timing, "power": power,
         "fits": results, "pilots": pilots,
         "machine": {"python": platform.python_version(), "platform": platform.platform(),
-                    "numpy": np.__version__}}, indent=2), encoding="utf-8")
-    print(f"wrote {out}")
+                    "numpy": np.__version__}})
 
 
 if __name__ == "__main__":
