@@ -50,6 +50,11 @@ MIN_CONFIDENCE = 0.5
 #: noise in the dark parts of the coffee scene was amplified (IoU 0.40); a floor
 #: of 20 grey levels fixed it (0.88) (research note §1.1).
 LOG_FLOOR = 20.0
+#: The light (gain and gradient) is fitted where the reference is at least this
+#: bright, in grey levels, and at least MIN_LIGHT_SAMPLES of its samples are (else to
+#: all): in the dark a gain is lost in the noise.
+LIGHT_MIN = 32.0
+MIN_LIGHT_SAMPLES = 64
 #: The change threshold is the score's median + MAD_FACTOR x 1.4826 x MAD (note §1.0).
 MAD_FACTOR = 8.0
 #: ... and never below this log-ratio (about 5 %; vtexp's addition): on a frame
@@ -93,6 +98,13 @@ SHADOW_GAIN = (0.3, 1.0)
 SHADOW_CHROMA = 0.06
 SHADOW_NCC = 0.5
 SHADOW_FLAT = 4.0
+#: ... and a shadow lies beside the object that casts it: a connected part of such
+#: pixels that touches the rest of the change and reaches farther than SHADOW_REACH
+#: of the frame's longer side from it is the object, not its shadow (a light card over
+#: a pale sky without texture is darker, of the sky's colour and flat, as a shadow
+#: is). The bench's shadows (offset 8-24 pixels at 640, blurred 5-12) reached at most
+#: 0.06; the parts of cards taken for shadow 0.08-0.27 (docs/decisions.md).
+SHADOW_REACH = 0.08
 #: A camera shift found by phase correlation counts only if the reference shifted by
 #: it explains the frame: the median change score falls under MOVED_EXPLAINS of the
 #: unshifted one. On plain grounds, where nothing can show a shift, the reduced frame's
@@ -151,24 +163,32 @@ def as_image(image: np.ndarray, name: str = "image") -> np.ndarray:
     return a.reshape(a.shape[0], a.shape[1], -1)
 
 
-def fit_light(log_ratio: np.ndarray, *, samples: int = 1024, rounds: int = 4) -> np.ndarray:
-    """Gain and linear light gradient of one channel's log-ratio, fitted robustly.
+def fit_light(log_ratio: np.ndarray, *, valid: np.ndarray | None = None,
+              samples: int = 1024, rounds: int = 4) -> np.ndarray:
+    """The light's change between reference and frame in one channel's log-ratio,
+    ``log(I + 1) - log(R + 1)``, fitted robustly.
 
-    ``log(I + floor) - log(R + floor)`` is, where nothing but the light changed,
-    the log of the gain plus a light gradient across the stage, which we take as
-    a plane ``a + b x + c y``. It is fitted by least squares to about ``samples``
-    pixels on a regular grid, starting from the median (gain only) and refitting
-    ``rounds`` times to the pixels within 3 x 1.4826 x MAD of the current plane,
-    so that an object covering less than half of the frame does not pull it.
-    (On 36 scenes of ``bench/scenes.py`` at the working resolution, 160x120, the
+    Where nothing but the light changed, the log-ratio is the log of the gain plus a
+    light gradient across the stage, which we take as a quadratic surface ``a + b x +
+    c y + d x² + e xy + f y²``. (The ratio of two lights, each a linear ramp, is not a
+    plane in the log: a reference lit 0.8-1.15 from the left and a frame lit 1.05-1.35
+    from a corner left a residual of 0.1 at the frame's edge past the plane.) It is
+    fitted by least squares to about ``samples`` pixels on a regular grid (those of
+    ``valid``, if given, where the reference is bright enough for a ratio), starting
+    from the median (gain only) and refitting ``rounds`` times to the pixels within
+    3 x 1.4826 x MAD of the current surface, so that an object covering less than half
+    of the frame does not pull it. (On 36 scenes of ``bench/scenes.py`` at 160x120, the
     planes fitted to 4800 samples and to 1024 differed by at most 0.008.)
 
-    Returns the fitted plane, an (H, W) float32 image.
+    Returns the fitted surface, the log of the gain, an (H, W) float32 image.
     """
-    return _fit_planes(np.asarray(log_ratio)[:, :, None], samples=samples, rounds=rounds)[:, :, 0]
+    ratio = np.asarray(log_ratio)[:, :, None]
+    valid = None if valid is None else np.asarray(valid)[:, :, None]
+    return _fit_planes(ratio, valid=valid, samples=samples, rounds=rounds)[:, :, 0]
 
 
-def _fit_planes(ratio: np.ndarray, *, samples: int = 1024, rounds: int = 4) -> np.ndarray:
+def _fit_planes(ratio: np.ndarray, *, valid: np.ndarray | None = None, samples: int = 1024,
+                rounds: int = 4) -> np.ndarray:
     """:func:`fit_light` of every channel of ``ratio`` (H, W, C) at once: (H, W, C)."""
     h, w, c = ratio.shape
     step = max(1, int(np.sqrt(h * w / samples)))
@@ -176,15 +196,18 @@ def _fit_planes(ratio: np.ndarray, *, samples: int = 1024, rounds: int = 4) -> n
     y = np.repeat(np.arange(0, h, step) / h - 0.5, sub.shape[1])
     x = np.tile(np.arange(0, w, step) / w - 0.5, sub.shape[0])
     d = sub.reshape(-1, c).T.astype(np.float64)                    # (C, n)
-    design = np.stack([np.ones_like(x), x, y], axis=1)              # (n, 3)
-    coef = np.zeros((c, 3))
-    coef[:, 0] = np.median(d, axis=1)
+    ok = np.ones_like(d, bool) if valid is None else valid[::step, ::step].reshape(-1, c).T
+    ok[ok.sum(axis=1) < MIN_LIGHT_SAMPLES] = True    # too few bright pixels: take them all
+    design = np.stack(_light_terms(x, y), axis=1)                    # (n, 6)
+    coef = np.zeros((c, design.shape[1]))
+    coef[:, 0] = [np.median(d[k, ok[k]]) for k in range(c)]
     for _ in range(rounds):
-        r = d - coef @ design.T
-        dev = np.abs(r - np.median(r, axis=1, keepdims=True))
-        keep = dev <= np.maximum(3 * 1.4826 * np.median(dev, axis=1, keepdims=True), 1e-3)
+        r = np.where(ok, d - coef @ design.T, np.nan)
+        dev = np.abs(r - np.nanmedian(r, axis=1, keepdims=True))
+        limit = np.maximum(3 * 1.4826 * np.nanmedian(dev, axis=1, keepdims=True), 1e-3)
+        keep = ok & (np.nan_to_num(dev, nan=np.inf) <= limit)
         for k in range(c):
-            if keep[k].sum() < 3:
+            if keep[k].sum() < design.shape[1]:
                 continue
             a = design[keep[k]]
             try:
@@ -194,32 +217,47 @@ def _fit_planes(ratio: np.ndarray, *, samples: int = 1024, rounds: int = 4) -> n
     yy = (np.arange(h, dtype=np.float32) / h - 0.5)[:, None, None]
     xx = (np.arange(w, dtype=np.float32) / w - 0.5)[None, :, None]
     cf = coef.astype(np.float32)
-    return cf[:, 0] + cf[:, 1] * xx + cf[:, 2] * yy
+    out = np.zeros((h, w, c), np.float32)
+    for k, term in enumerate(_light_terms(xx, yy)):
+        out += cf[:, k] * term
+    return out
+
+
+def _light_terms(x: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
+    """The light's surface: 1, x, y, x², xy, y² (x, y from -0.5 to 0.5 over the frame)."""
+    x, y = np.broadcast_arrays(x, y)
+    return [np.ones_like(x), x, y, x * x, x * y, y * y]
 
 
 def change_score(image: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """How much each pixel differs from the reference once the light is accounted for.
 
-    Per channel, the log-ratio ``log(I + 20) - log(R + 20)`` minus its fitted gain
-    and light gradient (:func:`fit_light`); the score is the root mean square of
-    these residuals over the channels, so a change of brightness and a change of
-    colour (one channel's ratio against the others) both count (note §1.0,
-    steps 1-2), and a gray and a colour image score a change of brightness alike.
+    Per channel, the log-ratio ``log(I + 20) - log(g R + 20)`` of the frame to the
+    reference relit by its fitted gain and light gradient ``g`` (:func:`fit_light`);
+    the score is the root mean square of these over the channels, so a change of
+    brightness and a change of colour (one channel's ratio against the others) both
+    count (note §1.0, steps 1-2), and a gray and a colour image score a change of
+    brightness alike.
     ``image`` and ``reference`` are float32 (H, W, C) of one size.
     """
     return _light_residual(image, reference)[0]
 
 
-def _light_residual(image: np.ndarray, reference: np.ndarray,
-                    log_reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(score, planes): :func:`change_score` and the fitted light, (H, W, C).
-    ``log_reference``: ``log(reference + LOG_FLOOR)`` if already known."""
-    if log_reference is None:
-        log_reference = np.log(reference + LOG_FLOOR)
-    ratio = np.log(image + LOG_FLOOR) - log_reference
-    planes = _fit_planes(ratio)
-    r = ratio - planes
-    return np.sqrt(_channel_mean(r * r)), planes
+def _light_residual(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(score, gain): :func:`change_score` and the fitted light, the gain (H, W, C) that
+    brings the reference to the frame's light.
+
+    The gain is fitted to ``log(I + 1) - log(R + 1)`` where the reference is at least
+    LIGHT_MIN (:func:`fit_light`): the floored log-ratio of the score is not a gain
+    (a gain of 1.35 moves it by 0.16 at 20 grey levels and by 0.28 at 200), and fitted
+    to it the light left bright parts of a relit stage 0.05-0.09 off. The score then
+    compares the frame with the relit reference, ``log(I + 20) - log(min(g R, 255) +
+    20)``: the camera clips at 255 what the relit reference predicts above it."""
+    log_image = np.log(image + LOG_FLOOR)
+    gain = np.exp(_fit_planes(np.log(image + 1.0) - np.log(reference + 1.0),
+                              valid=reference >= LIGHT_MIN))
+    r = log_image - np.log(np.minimum(reference * gain, 255.0) + LOG_FLOOR)
+    return np.sqrt(_channel_mean(r * r)), gain
 
 
 def _channel_mean(x: np.ndarray) -> np.ndarray:
@@ -242,13 +280,53 @@ def camera_shift(image: np.ndarray, reference: np.ndarray) -> tuple[float, float
     return float(dx), float(dy), float(peak)
 
 
-def change_threshold(score: np.ndarray) -> float:
-    """Median + 8 x 1.4826 x MAD of the score (note §1.0, step 3), at least MIN_CHANGE.
+def change_threshold(score: np.ndarray, floor: float = MIN_CHANGE) -> float:
+    """Median + 8 x 1.4826 x MAD of the score (note §1.0, step 3), at least ``floor``.
     On a larger score, of every other pixel of every other row."""
     sub = score[::2, ::2] if score.size > 40000 else score
     med = float(np.median(sub))
     mad = float(np.median(np.abs(sub - med)))
-    return max(med + MAD_FACTOR * 1.4826 * mad, MIN_CHANGE)
+    return max(med + MAD_FACTOR * 1.4826 * mad, floor)
+
+
+def in_grey_levels(score: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """The change score (a log-ratio) as the change in grey levels it means at each
+    pixel of ``reference``: ``score / sqrt(mean_c 1 / (R_c + 20)^2)``.
+
+    Sensor noise of ``s`` grey levels moves ``log(I + 20)`` by about ``s / (I + 20)``,
+    so one threshold on the log-ratio is five to ten times the noise on a bright flat
+    sky and about the noise in the dark: a light card over a pale sky (a change of 0.14)
+    was missed under a threshold the dark, textured parts of the frame set (0.29). In
+    grey levels the noise is one scale over the frame, which the MAD threshold needs.
+    On ``bench/scenes.py``'s photographs the ground's score grew with the reference's
+    darkness, not with its texture; a term for texture, or for a gain error, fitted
+    to each frame took part of the object's change for noise (figure IoU on
+    photographs 0.82-0.83 with the log-ratio's threshold, 0.88 in grey levels, 0.85-0.87
+    with either term; docs/decisions.md).
+    """
+    inverse = _channel_mean(1.0 / (reference + LOG_FLOOR) ** 2)
+    return score / np.sqrt(inverse)
+
+
+def cast_shadow(changed: np.ndarray, shadow: np.ndarray) -> np.ndarray:
+    """The pixels of ``shadow`` (shadow-like and changed, :func:`shadow_like`) that are
+    a shadow cast by the object: the connected parts (8-connected) that do not touch
+    the rest of the change, and those that do and lie within SHADOW_REACH of the
+    frame's longer side of it. A part that reaches farther is the object."""
+    cv = cv2()
+    rest = changed & ~shadow
+    if not shadow.any() or not rest.any():
+        return shadow
+    n, labels = cv.connectedComponents(shadow.astype(np.uint8), connectivity=8)
+    distance = cv.distanceTransform((~rest).view(np.uint8), cv.DIST_L2, 3)
+    far = np.zeros(n, np.float32)
+    np.maximum.at(far, labels.ravel(), distance.ravel())
+    near = cv.dilate(rest.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+    touches = np.zeros(n, bool)
+    touches[labels[near & shadow]] = True
+    keep = ~touches | (far <= SHADOW_REACH * max(changed.shape))
+    keep[0] = False
+    return keep[labels]
 
 
 def reduce(image: np.ndarray, work_px: int = WORK_PX) -> np.ndarray:
@@ -276,19 +354,16 @@ def enlarge(figure: Figure, shape: tuple[int, ...]) -> Figure:
     return Figure((up >= 128).view(np.uint8), figure.confidence, figure.method, figure.reason)
 
 
-def shadow_like(image: np.ndarray, reference: np.ndarray, planes: np.ndarray,
-                log_reference: np.ndarray | None = None) -> np.ndarray:
+def shadow_like(image: np.ndarray, reference: np.ndarray, gain: np.ndarray) -> np.ndarray:
     """Where ``image`` looks like ``reference`` under a shadow (SHADOW_GAIN ...): a bool
-    (H, W) mask. ``planes`` is the fitted light (:func:`_light_residual`), so the
+    (H, W) mask. ``gain`` is the fitted light (:func:`_light_residual`), so the
     reference is compared as lit like the frame. Gray images: no colour test.
 
     A shadow darkens the ground and keeps its colour and texture; an object that
     replaces it changes at least one of them, unless it is a darker patch of the
     ground's colour on a ground with no texture: that is taken for a shadow."""
     cv = cv2()
-    if log_reference is None:
-        log_reference = np.log(reference + LOG_FLOOR)
-    relit = np.exp(log_reference + planes) - LOG_FLOOR
+    relit = reference * gain
     c = image.shape[2]
     a = cv.blur(image, (3, 3)).reshape(image.shape)
     b = cv.blur(relit, (3, 3)).reshape(image.shape)
@@ -408,14 +483,18 @@ def _confidence(score: np.ndarray, threshold: float, raw: np.ndarray,
 
 def figure_from_score(score: np.ndarray, method: str, raw: np.ndarray | None = None, *,
                       redo: str = "capture the empty stage again",
-                      threshold: float | None = None) -> Figure:
+                      threshold: float | None = None,
+                      evidence: np.ndarray | None = None) -> Figure:
     """A Figure from a change score (:func:`change_score`): thresholded (or ``raw``,
     a foreground mask found otherwise), checked for a changed stage, cleaned.
     ``redo`` ends the reason of a changed stage: what the experimenter should do;
-    ``threshold``: :func:`change_threshold` of ``score`` if already known."""
-    threshold = change_threshold(score) if threshold is None else threshold
+    ``evidence``: what ``threshold`` applies to and the confidence is judged on
+    (:func:`in_grey_levels`; default the score itself); ``threshold``:
+    :func:`change_threshold` of it if already known."""
+    evidence = score if evidence is None else evidence
+    threshold = change_threshold(evidence) if threshold is None else threshold
     if raw is None:
-        raw = score > threshold
+        raw = evidence > threshold
     share = float(np.mean(score[::2, ::2] > STAGE_LEVEL))
     if share > STAGE_CHANGED:
         return Figure.nothing(score.shape, (
@@ -428,7 +507,7 @@ def figure_from_score(score: np.ndarray, method: str, raw: np.ndarray | None = N
     small = _size_reason(mask)
     if small:
         return Figure.nothing(score.shape, "no object: " + small, method)
-    conf, reason = _confidence(score, threshold, raw, mask)
+    conf, reason = _confidence(evidence, threshold, raw, mask)
     return Figure(mask, conf, method, reason)
 
 
@@ -438,12 +517,14 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
 
     1. log-ratio of the frame to the reference, per channel, with a floor of 20
        grey levels (``log(I + 20) - log(R + 20)``);
-    2. a robustly fitted plane (gain and linear light gradient) subtracted per
-       channel; the score is the root mean square of the residuals over the
-       channels (brightness and colour ratio, :func:`change_score`);
-    3. threshold at median + 8 x 1.4826 x MAD of the score (at least MIN_CHANGE);
-       changed pixels that look like the reference in shadow are not the object
-       (:func:`shadow_like`; vtexp's addition);
+    2. a robustly fitted surface (gain and light gradient, :func:`fit_light`)
+       subtracted per channel; the score is the root mean square of the residuals
+       over the channels (brightness and colour ratio, :func:`change_score`);
+    3. threshold at median + 8 x 1.4826 x MAD of the score in grey levels
+       (:func:`in_grey_levels`; the note thresholds the log-ratio itself), and at a
+       log-ratio of at least MIN_CHANGE; changed pixels that look like the reference
+       in shadow are not the object (:func:`shadow_like`) unless they reach too far
+       from the rest (:func:`cast_shadow`; vtexp's additions);
     4. close and open, the largest part kept, holes filled (:func:`clean_mask`).
 
     All of it on the frame and reference reduced to ``work_px`` (:data:`WORK_PX`) on
@@ -458,7 +539,8 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
     a real camera lock exposure and white balance if it can, and take the reference
     as the mean of about 10 empty frames. A shadow the object casts on a ground of
     its own colour without texture, and a dark object of the ground's colour on such
-    a ground, look alike: both are taken for shadow.
+    a ground, look alike: both are taken for shadow where they lie beside the rest
+    of the object, and for the object farther away (a long shadow, too).
 
     Parameters
     ----------
@@ -496,11 +578,13 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
     moved = _moved(img, ref, "capture the empty stage again", full.shape[1] / img.shape[1])
     if moved:
         return Figure.nothing(full.shape, moved, "reference")
-    score, planes = _light_residual(img, ref)
-    threshold = change_threshold(score)
-    raw = (score > threshold) & ~shadow_like(img, ref, planes)
-    return enlarge(figure_from_score(score, "reference", raw=raw, threshold=threshold),
-                   full.shape)
+    score, gain = _light_residual(img, ref)
+    grey = in_grey_levels(score, ref)
+    threshold = change_threshold(grey, floor=0.0)
+    changed = (grey > threshold) & (score > MIN_CHANGE)
+    raw = changed & ~cast_shadow(changed, changed & shadow_like(img, ref, gain))
+    return enlarge(figure_from_score(score, "reference", raw=raw, threshold=threshold,
+                                     evidence=grey), full.shape)
 
 
 def _moved(image: np.ndarray, reference: np.ndarray, redo: str, scale: float = 1.0
@@ -911,7 +995,6 @@ class BackgroundModel:
         self._seen = 0
         self._shape: tuple[int, ...] | None = None
         self._background: np.ndarray | None = None
-        self._log_background: np.ndarray | None = None
         self._sums: list[np.ndarray] = []       # of log-brightness and its square, learning
         self._steady: np.ndarray | None = None  # the ratio test's per-pixel threshold
 
@@ -939,15 +1022,16 @@ class BackgroundModel:
         moved = _moved(img, self._background, redo, full.shape[1] / img.shape[1])
         if moved:
             return Figure.nothing(full.shape, moved, "model")
-        bg, log_bg = self._background, self._log_background
-        score, planes = _light_residual(img, bg, log_bg)
-        relit = np.exp(np.log(img + LOG_FLOOR) - planes) - LOG_FLOOR
+        bg = self._background
+        score, gain = _light_residual(img, bg)
+        relit = img / gain
         fg = self._mog.apply(_to_u8(relit), learningRate=0) == 255
-        threshold = change_threshold(score)
-        fg |= score > np.maximum(threshold, self._steady)
-        fg &= ~shadow_like(img, bg, planes, log_bg)
+        grey = in_grey_levels(score, bg)
+        threshold = change_threshold(grey, floor=0.0)
+        fg |= (grey > threshold) & (score > np.maximum(MIN_CHANGE, self._steady))
+        fg &= ~cast_shadow(fg, fg & shadow_like(img, bg, gain))
         return enlarge(figure_from_score(score, "model", raw=fg, redo=redo,
-                                         threshold=threshold), full.shape)
+                                         threshold=threshold, evidence=grey), full.shape)
 
     def _learn(self, img: np.ndarray) -> None:
         self._mog.apply(_to_u8(img), learningRate=-1)
@@ -960,7 +1044,6 @@ class BackgroundModel:
         self._seen += 1
         if self._seen >= self.learn_frames:
             self._background = as_image(self._mog.getBackgroundImage(), "background")
-            self._log_background = np.log(self._background + LOG_FLOOR)
             mean, mean2 = (x / self._seen for x in self._sums)
             var = np.maximum(mean2 - mean * mean, 0.0).mean(axis=2)
             self._steady = (STEADY_SIGMAS * np.sqrt(var)).astype(np.float32)
