@@ -200,32 +200,32 @@ def _fit_planes(ratio: np.ndarray, *, valid: np.ndarray | None = None, samples: 
     ok[ok.sum(axis=1) < MIN_LIGHT_SAMPLES] = True    # too few bright pixels: take them all
     design = np.stack(_light_terms(x, y), axis=1)                    # (n, 6)
     coef = np.zeros((c, design.shape[1]))
-    coef[:, 0] = [np.median(d[k, ok[k]]) for k in range(c)]
-    for _ in range(rounds):
-        r = np.where(ok, d - coef @ design.T, np.nan)
-        dev = np.abs(r - np.nanmedian(r, axis=1, keepdims=True))
-        limit = np.maximum(3 * 1.4826 * np.nanmedian(dev, axis=1, keepdims=True), 1e-3)
-        keep = ok & (np.nan_to_num(dev, nan=np.inf) <= limit)
-        for k in range(c):
-            if keep[k].sum() < design.shape[1]:
-                continue
-            a = design[keep[k]]
+    for k in range(c):
+        dk, ak = d[k, ok[k]], design[ok[k]]
+        coef[k, 0] = np.median(dk)
+        for _ in range(rounds):
+            r = dk - ak @ coef[k]
+            dev = np.abs(r - np.median(r))
+            keep = dev <= max(3 * 1.4826 * float(np.median(dev)), 1e-3)
+            if keep.sum() < design.shape[1]:
+                break
+            a = ak[keep]
             try:
-                coef[k] = np.linalg.solve(a.T @ a, a.T @ d[k, keep[k]])
+                coef[k] = np.linalg.solve(a.T @ a, a.T @ dk[keep])
             except np.linalg.LinAlgError:
-                coef[k] = np.linalg.lstsq(a, d[k, keep[k]], rcond=None)[0]
-    yy = (np.arange(h, dtype=np.float32) / h - 0.5)[:, None, None]
-    xx = (np.arange(w, dtype=np.float32) / w - 0.5)[None, :, None]
-    cf = coef.astype(np.float32)
-    out = np.zeros((h, w, c), np.float32)
-    for k, term in enumerate(_light_terms(xx, yy)):
-        out += cf[:, k] * term
+                coef[k] = np.linalg.lstsq(a, dk[keep], rcond=None)[0]
+    yy = (np.arange(h, dtype=np.float32) / h - 0.5)[:, None]
+    xx = (np.arange(w, dtype=np.float32) / w - 0.5)[None, :]
+    out = np.empty((h, w, c), np.float32)
+    for k, (a, b, cy, d, e, f) in enumerate(coef.astype(np.float32)):
+        # one channel at a time: numpy broadcasts slowly over a last axis of 3
+        out[:, :, k] = (a + cy * yy + f * yy * yy) + (b + e * yy) * xx + d * xx * xx
     return out
 
 
 def _light_terms(x: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
-    """The light's surface: 1, x, y, x², xy, y² (x, y from -0.5 to 0.5 over the frame)."""
-    x, y = np.broadcast_arrays(x, y)
+    """The light's surface: 1, x, y, x², xy, y² (x, y from -0.5 to 0.5 over the frame;
+    :func:`_fit_planes` evaluates it in this order)."""
     return [np.ones_like(x), x, y, x * x, x * y, y * y]
 
 
