@@ -13,12 +13,13 @@ a 0.80-1.15 light gradient with N(0, 3) noise; the figures measured here on the 
 kind of scenes, with vtexp's changes, are in docs/decisions.md):
 
 - :func:`figure_from_reference` — the empty stage was captured: the log-ratio of
-  the frame to it, a fitted gain and light gradient removed, thresholded at
-  median + 8 x 1.4826 x MAD, shadows left out, on the frame reduced to 320 pixels.
-  Note: IoU 0.88-0.95, 0.81-0.96 after the light changed; here, at full resolution,
-  0.86-0.99 after the light changed, all empty stages empty; on ``bench/scenes.py``'s
-  72 composites with a soft shadow, mean IoU 0.95 on a plain ground and 0.82 on
-  photographs (0.84 and 0.74 before shadows were left out).
+  the frame to it relit by a fitted gain and light gradient, thresholded at
+  median + 8 x 1.4826 x MAD in grey levels, shadows beside the object left out, on
+  the frame reduced to 320 pixels. Note: IoU 0.88-0.95, 0.81-0.96 after the light
+  changed; here, at full resolution, 0.86-0.99 after the light changed, all empty
+  stages empty; on ``bench/scenes.py``'s 72 composites with a soft shadow, mean IoU
+  0.95 on a plain ground and 0.88 on photographs (0.82 with one threshold on the
+  log-ratio, 0.74 before shadows were left out).
 - :class:`BackgroundModel` — a live camera: OpenCV's MOG2 learns the empty stage
   on the first frames and is then frozen (a stopped object stays figure: IoU
   0.86-0.97 after 90 still frames, note), frames brought to its background's light
@@ -515,11 +516,11 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
                           work_px: int = WORK_PX) -> Figure:
     """The object as what differs from a picture of the empty stage (research note §1.0).
 
-    1. log-ratio of the frame to the reference, per channel, with a floor of 20
-       grey levels (``log(I + 20) - log(R + 20)``);
-    2. a robustly fitted surface (gain and light gradient, :func:`fit_light`)
-       subtracted per channel; the score is the root mean square of the residuals
-       over the channels (brightness and colour ratio, :func:`change_score`);
+    1. the light's change fitted robustly per channel, a gain and light gradient
+       ``g`` (:func:`fit_light`; the note fits a plane to the log-ratio of step 2);
+    2. log-ratio of the frame to the reference so relit, per channel, with a floor of
+       20 grey levels (``log(I + 20) - log(g R + 20)``); the score is its root mean
+       square over the channels (brightness and colour ratio, :func:`change_score`);
     3. threshold at median + 8 x 1.4826 x MAD of the score in grey levels
        (:func:`in_grey_levels`; the note thresholds the log-ratio itself), and at a
        log-ratio of at least MIN_CHANGE; changed pixels that look like the reference
