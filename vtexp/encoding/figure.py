@@ -112,6 +112,13 @@ SHADOW_REACH = 0.08
 #: phase correlation peaks at random shifts (0.06-0.25 peak); the shifted reference
 #: then explains nothing (median score 0.8-1.3 of the unshifted).
 MOVED_EXPLAINS = 0.7
+#: How deep the figure's rim is that :func:`settle_rim` looks at, as a share of the
+#: longer side (2 pixels at WORK_PX; 1 and 3 pixels gave 0.002-0.006 less on the dev seeds).
+RIM_SHARE = 1 / 160
+#: ... only where the inside nearby is even (the standard deviation of its difference
+#: under RIM_EVEN of the mean): a textured object's difference says little of how much
+#: of a pixel it covers.
+RIM_EVEN = 0.5
 #: Smallest figure, as a share of the frame; smaller parts are specks or noise.
 MIN_AREA = 0.002
 #: Parts of a figure smaller than this share of its largest part are dropped as
@@ -584,8 +591,42 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
     threshold = change_threshold(grey, floor=0.0)
     changed = (grey > threshold) & (score > MIN_CHANGE)
     raw = changed & ~cast_shadow(changed, changed & shadow_like(img, ref, gain))
-    return enlarge(figure_from_score(score, "reference", raw=raw, threshold=threshold,
-                                     evidence=grey), full.shape)
+    fig = figure_from_score(score, "reference", raw=raw, threshold=threshold, evidence=grey)
+    return enlarge(settle_rim(fig, img, ref * gain), full.shape)
+
+
+def settle_rim(figure: Figure, image: np.ndarray, relit: np.ndarray) -> Figure:
+    """``figure`` with its rim where the object covers at least half of each pixel.
+
+    Every pixel the object's blurred edge changes past the noise is changed, so the
+    figure ends where the object covers a small part of a pixel, not half: on the
+    bench's plain grounds it held all of the object and 1.4-5 % more, around it. A
+    pixel a share ``a`` of which the object covers differs from the relit reference by
+    ``a`` times what the object's inside nearby does (in grey levels, the norm over
+    the channels). Pixels of the figure's outer rim (RIM_SHARE of the longer side deep,
+    at least 1 pixel) that differ by less than half the mean of the inside within a
+    window of about 1/50 of the longer side, where that inside is even (RIM_EVEN), are
+    dropped, holes filled. The dark rim of a shadow beside the object goes too.
+    Measured on the dev seeds (docs/decisions.md): figure IoU on plain grounds 0.94 /
+    0.95 -> 0.96 / 0.98, photographs 0.88 / 0.88 -> 0.89 / 0.90."""
+    if figure.empty:
+        return figure
+    cv = cv2()
+    diff = image - relit
+    d = np.sqrt(_channel_mean(diff * diff))
+    depth = max(1, int(round(RIM_SHARE * max(d.shape))))
+    k = max(3, int(round(max(d.shape) / 50)) | 1)
+    inside = cv.erode(figure.mask, np.ones((3, 3), np.uint8), iterations=depth)
+    weight = cv.blur(inside.astype(np.float32), (k, k))
+    near = cv.blur(d * inside, (k, k)) / np.maximum(weight, 1e-6)
+    spread = cv.blur(d * d * inside, (k, k)) / np.maximum(weight, 1e-6) - near * near
+    even = spread < (RIM_EVEN * near) ** 2
+    drop = (figure.mask > 0) & (inside == 0) & (weight > 0) & even & (d < 0.5 * near)
+    if not drop.any():
+        return figure
+    mask = figure.mask.copy()
+    mask[drop] = 0
+    return Figure(fill_holes(mask), figure.confidence, figure.method, figure.reason)
 
 
 def _moved(image: np.ndarray, reference: np.ndarray, redo: str, scale: float = 1.0
@@ -1031,8 +1072,9 @@ class BackgroundModel:
         threshold = change_threshold(grey, floor=0.0)
         fg |= (grey > threshold) & (score > np.maximum(MIN_CHANGE, self._steady))
         fg &= ~cast_shadow(fg, fg & shadow_like(img, bg, gain))
-        return enlarge(figure_from_score(score, "model", raw=fg, redo=redo,
-                                         threshold=threshold, evidence=grey), full.shape)
+        fig = figure_from_score(score, "model", raw=fg, redo=redo, threshold=threshold,
+                                evidence=grey)
+        return enlarge(settle_rim(fig, img, bg * gain), full.shape)
 
     def _learn(self, img: np.ndarray) -> None:
         self._mog.apply(_to_u8(img), learningRate=-1)
