@@ -110,6 +110,37 @@ def test_an_empty_stage_is_an_empty_figure_with_its_reason():
         assert fig.reason and "no object" in fig.reason
 
 
+def _card_scene(stage: np.ndarray, *, size: float, center_x: float, center_y: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frame, reference, true mask): a flat grey card over ``stage``, both blurred by
+    the lens (1 pixel) and shot with their own noise."""
+    cover = render_shape(shape="square", width=W, height=H, size=size, center_x=center_x,
+                         center_y=center_y, rotation_deg=10, background=0,
+                         foreground=255) / 255.0
+    card = np.array([180, 182, 178], np.float32)
+    scene = stage * (1 - cover[:, :, None]) + card * cover[:, :, None]
+    lens = [cv.GaussianBlur(np.asarray(x, np.float32), (0, 0), 1.0) for x in (scene, stage)]
+    return shoot(lens[0], 1.0, 2), shoot(lens[1], 1.0, 1), (cover >= 0.5).astype(np.uint8)
+
+
+@pytest.mark.parametrize("ground", ["plain", "photograph"])
+def test_the_figure_ends_where_the_card_covers_half_a_pixel(ground):
+    # The change past the noise starts where the card's blurred edge covers a small part
+    # of a pixel; the figure's rim is settled where it covers half (docs/decisions.md).
+    # Over the photograph's blue background the card is found whole (before the score
+    # was taken in grey levels and the light as a gain: IoU 0.60, 39 % of it missed).
+    if ground == "plain":
+        stage = np.broadcast_to(np.float32([40, 45, 42]), (H, W, 3))
+    else:
+        stage = cv.resize(photograph(), (W, H), interpolation=cv.INTER_AREA)
+    frame, reference, truth = _card_scene(stage, size=0.4, center_x=0.8, center_y=0.45)
+    fig = figure_from_reference(frame, reference)
+    got, want = fig.mask > 0, truth > 0
+    assert not fig.empty and iou(fig.mask, truth) >= 0.95
+    assert (got & ~want).sum() <= 0.02 * want.sum()        # what is not the card
+    assert (want & ~got).sum() <= 0.03 * want.sum()        # the card missed
+
+
 def test_a_change_of_exposure_is_absorbed():
     stage, scene, truth = photo_scene("square", size=0.35, rotation_deg=20)
     reference = shoot(stage, 1.0, 1)
