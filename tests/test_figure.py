@@ -18,8 +18,8 @@ import pytest
 
 from vtexp._cv2 import cv2
 from vtexp.encoding import PIPELINES
-from vtexp.encoding.figure import (MIN_CONFIDENCE, BackgroundModel, Figure, figure_from_reference,
-                                   figure_from_still)
+from vtexp.encoding.figure import (MIN_CONFIDENCE, SHADOW_REACH, BackgroundModel, Figure,
+                                   cast_shadow, figure_from_reference, figure_from_still)
 from vtexp.encoding.height_contours import reflectance
 from vtexp.encoding.snake import SnakeTracker
 from vtexp.errors import InputError
@@ -139,6 +139,21 @@ def test_the_figure_ends_where_the_card_covers_half_a_pixel(ground):
     assert not fig.empty and iou(fig.mask, truth) >= 0.95
     assert (got & ~want).sum() <= 0.02 * want.sum()        # what is not the card
     assert (want & ~got).sum() <= 0.03 * want.sum()        # the card missed
+
+
+def test_a_shadow_lies_beside_its_object_and_what_reaches_farther_is_the_object():
+    changed = np.zeros((240, 320), bool)
+    shadow = np.zeros_like(changed)
+    changed[40:120, 40:100] = True                 # the object's part that is no shadow
+    reach = int(SHADOW_REACH * 320)
+    changed[40:100, 100:100 + reach - 4] = shadow[40:100, 100:100 + reach - 4] = True
+    changed[170:220, 40:200] = shadow[170:220, 40:200] = True    # touches nothing
+    changed[120:140, 40:260] = shadow[120:140, 40:260] = True    # reaches 160 px away
+    cast = cast_shadow(changed, shadow)
+    assert cast[40:100, 100:100 + reach - 4].all()          # beside it: its shadow
+    assert cast[170:220, 40:200].all()              # alone (a shadow from outside the frame)
+    assert not cast[120:140, 40:260].any()          # the object (a card over a pale sky)
+    assert not cast[~shadow].any()
 
 
 def test_a_change_of_exposure_is_absorbed():
