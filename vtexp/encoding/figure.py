@@ -18,8 +18,9 @@ kind of scenes, with vtexp's changes, are in docs/decisions.md):
   the frame reduced to 320 pixels. Note: IoU 0.88-0.95, 0.81-0.96 after the light
   changed; here, at full resolution, 0.86-0.99 after the light changed, all empty
   stages empty; on ``bench/scenes.py``'s 72 composites with a soft shadow, mean IoU
-  0.95 on a plain ground and 0.88 on photographs (0.82 with one threshold on the
-  log-ratio, 0.74 before shadows were left out).
+  0.97 on a plain ground and 0.89 on photographs (0.95 and 0.82 with one threshold on
+  the log-ratio and the rim where the change passed the noise; 0.74 on photographs
+  before shadows were left out).
 - :class:`BackgroundModel` — a live camera: OpenCV's MOG2 learns the empty stage
   on the first frames and is then frozen (a stopped object stays figure: IoU
   0.86-0.97 after 90 still frames, note), frames brought to its background's light
@@ -533,7 +534,9 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
        log-ratio of at least MIN_CHANGE; changed pixels that look like the reference
        in shadow are not the object (:func:`shadow_like`) unless they reach too far
        from the rest (:func:`cast_shadow`; vtexp's additions);
-    4. close and open, the largest part kept, holes filled (:func:`clean_mask`).
+    4. close and open, the largest part kept, holes filled (:func:`clean_mask`);
+    5. the rim settled where the object covers half of each pixel (:func:`settle_rim`;
+       vtexp's addition).
 
     All of it on the frame and reference reduced to ``work_px`` (:data:`WORK_PX`) on
     the longer side; the mask is brought back to the frame's size (:func:`enlarge`).
