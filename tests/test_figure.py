@@ -19,7 +19,8 @@ import pytest
 from vtexp._cv2 import cv2
 from vtexp.encoding import PIPELINES
 from vtexp.encoding.figure import (MIN_CONFIDENCE, SHADOW_REACH, BackgroundModel, Figure,
-                                   cast_shadow, figure_from_reference, figure_from_still)
+                                   cast_shadow, figure_from_reference, figure_from_still,
+                                   fit_light)
 from vtexp.encoding.height_contours import reflectance
 from vtexp.encoding.snake import SnakeTracker
 from vtexp.errors import InputError
@@ -139,6 +140,22 @@ def test_the_figure_ends_where_the_card_covers_half_a_pixel(ground):
     assert not fig.empty and iou(fig.mask, truth) >= 0.95
     assert (got & ~want).sum() <= 0.02 * want.sum()        # what is not the card
     assert (want & ~got).sum() <= 0.03 * want.sum()        # the card missed
+
+
+def test_the_light_is_a_quadratic_surface_fitted_past_an_object_and_the_dark():
+    h, w = 120, 160
+    y = (np.arange(h) / h - 0.5)[:, None]
+    x = (np.arange(w) / w - 0.5)[None, :]
+    light = 0.1 + 0.2 * x - 0.3 * y + 0.4 * x * x - 0.5 * x * y + 0.6 * y * y
+    ratio = light + np.random.default_rng(0).normal(0, 0.01, (h, w))
+    ratio[20:70, 30:90] += 0.8                    # an object: a third of the frame
+    valid = np.ones((h, w), bool)
+    valid[:, :20] = False                         # too dark for a ratio: left out
+    ratio[:, :20] = 0.0
+    kept = valid.copy()
+    fit = fit_light(ratio, valid=valid)
+    assert np.abs(fit - light).max() < 0.02
+    assert (valid == kept).all()                  # the caller's mask is not written
 
 
 def test_a_shadow_lies_beside_its_object_and_what_reaches_farther_is_the_object():

@@ -105,7 +105,7 @@ SHADOW_FLAT = 4.0
 #: of the frame's longer side from it is the object, not its shadow (a light card over
 #: a pale sky without texture is darker, of the sky's colour and flat, as a shadow
 #: is). The bench's shadows (offset 8-24 pixels at 640, blurred 5-12) reached at most
-#: 0.06; the parts of cards taken for shadow 0.08-0.27 (docs/decisions.md).
+#: 0.06; the large parts of cards taken for shadow 0.08-0.27 (docs/decisions.md).
 SHADOW_REACH = 0.08
 #: A camera shift found by phase correlation counts only if the reference shifted by
 #: it explains the frame: the median change score falls under MOVED_EXPLAINS of the
@@ -114,7 +114,8 @@ SHADOW_REACH = 0.08
 #: then explains nothing (median score 0.8-1.3 of the unshifted).
 MOVED_EXPLAINS = 0.7
 #: How deep the figure's rim is that :func:`settle_rim` looks at, as a share of the
-#: longer side (2 pixels at WORK_PX; 1 and 3 pixels gave 0.002-0.006 less on the dev seeds).
+#: longer side (2 pixels at WORK_PX; 1 and 3 pixels moved the dev seeds' figure IoU by
+#: -0.006 to +0.002).
 RIM_SHARE = 1 / 160
 #: ... only where the inside nearby is even (the standard deviation of its difference
 #: under RIM_EVEN of the mean): a textured object's difference says little of how much
@@ -205,7 +206,8 @@ def _fit_planes(ratio: np.ndarray, *, valid: np.ndarray | None = None, samples: 
     y = np.repeat(np.arange(0, h, step) / h - 0.5, sub.shape[1])
     x = np.tile(np.arange(0, w, step) / w - 0.5, sub.shape[0])
     d = sub.reshape(-1, c).T.astype(np.float64)                    # (C, n)
-    ok = np.ones_like(d, bool) if valid is None else valid[::step, ::step].reshape(-1, c).T
+    ok = (np.ones_like(d, bool) if valid is None
+          else valid[::step, ::step].reshape(-1, c).T.copy())   # never the caller's array
     ok[ok.sum(axis=1) < MIN_LIGHT_SAMPLES] = True    # too few bright pixels: take them all
     design = np.stack(_light_terms(x, y), axis=1)                    # (n, 6)
     coef = np.zeros((c, design.shape[1]))
@@ -226,9 +228,9 @@ def _fit_planes(ratio: np.ndarray, *, valid: np.ndarray | None = None, samples: 
     yy = (np.arange(h, dtype=np.float32) / h - 0.5)[:, None]
     xx = (np.arange(w, dtype=np.float32) / w - 0.5)[None, :]
     out = np.empty((h, w, c), np.float32)
-    for k, (a, b, cy, d, e, f) in enumerate(coef.astype(np.float32)):
+    for k, (c1, cx, cy, cxx, cxy, cyy) in enumerate(coef.astype(np.float32)):
         # one channel at a time: numpy broadcasts slowly over a last axis of 3
-        out[:, :, k] = (a + cy * yy + f * yy * yy) + (b + e * yy) * xx + d * xx * xx
+        out[:, :, k] = (c1 + cy * yy + cyy * yy * yy) + (cx + cxy * yy) * xx + cxx * xx * xx
     return out
 
 
