@@ -365,16 +365,16 @@ def enlarge(figure: Figure, shape: tuple[int, ...]) -> Figure:
     return Figure((up >= 128).view(np.uint8), figure.confidence, figure.method, figure.reason)
 
 
-def shadow_like(image: np.ndarray, reference: np.ndarray, gain: np.ndarray) -> np.ndarray:
-    """Where ``image`` looks like ``reference`` under a shadow (SHADOW_GAIN ...): a bool
-    (H, W) mask. ``gain`` is the fitted light (:func:`_light_residual`), so the
-    reference is compared as lit like the frame. Gray images: no colour test.
+def shadow_like(image: np.ndarray, relit: np.ndarray) -> np.ndarray:
+    """Where ``image`` looks like the reference under a shadow (SHADOW_GAIN ...): a bool
+    (H, W) mask. ``relit`` is the reference times the fitted light's gain
+    (:func:`_light_residual`), so it is compared as lit like the frame. Gray images: no
+    colour test.
 
     A shadow darkens the ground and keeps its colour and texture; an object that
     replaces it changes at least one of them, unless it is a darker patch of the
     ground's colour on a ground with no texture: that is taken for a shadow."""
     cv = cv2()
-    relit = reference * gain
     c = image.shape[2]
     a = cv.blur(image, (3, 3)).reshape(image.shape)
     b = cv.blur(relit, (3, 3)).reshape(image.shape)
@@ -384,7 +384,7 @@ def shadow_like(image: np.ndarray, reference: np.ndarray, gain: np.ndarray) -> n
     if c == 3:
         chroma = np.sqrt(3 * _channel_mean(((a + 1) / sa[..., None] - (b + 1) / sb[..., None]) ** 2))
         out &= chroma <= SHADOW_CHROMA
-    k = max(3, int(round(max(image.shape[:2]) / 50)) | 1)
+    k = _window(image.shape)
     gi, gr = _channel_mean(image), _channel_mean(relit)
     mi, mr = cv.blur(gi, (k, k)), cv.blur(gr, (k, k))
     vi = cv.blur(gi * gi, (k, k)) - mi * mi
@@ -392,6 +392,11 @@ def shadow_like(image: np.ndarray, reference: np.ndarray, gain: np.ndarray) -> n
     cov = cv.blur(gi * gr, (k, k)) - mi * mr
     ncc = cov / np.sqrt(np.maximum(vi, 1e-6) * np.maximum(vr, 1e-6))
     return out & ((ncc >= SHADOW_NCC) | (vr < SHADOW_FLAT ** 2))
+
+
+def _window(shape: tuple[int, ...]) -> int:
+    """An odd window of about 1/50 of the longer side of ``shape``, at least 3 pixels."""
+    return max(3, int(round(max(shape[:2]) / 50)) | 1)
 
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
@@ -592,12 +597,27 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
     if moved:
         return Figure.nothing(full.shape, moved, "reference")
     score, gain = _light_residual(img, ref)
-    grey = in_grey_levels(score, ref)
+    return enlarge(_figure_of_change(img, ref, score, gain, "reference"), full.shape)
+
+
+def _figure_of_change(image: np.ndarray, reference: np.ndarray, score: np.ndarray,
+                      gain: np.ndarray, method: str, *, least: float | np.ndarray = MIN_CHANGE,
+                      also: np.ndarray | None = None,
+                      redo: str = "capture the empty stage again") -> Figure:
+    """Steps 3-5 of :func:`figure_from_reference` on reduced frames, shared with
+    :class:`BackgroundModel`: changed where the score in grey levels passes its
+    threshold and the log-ratio ``least`` (a number or per pixel), or where ``also``
+    says so; shadows beside the object left out; cleaned; the rim settled."""
+    grey = in_grey_levels(score, reference)
     threshold = change_threshold(grey, floor=0.0)
-    changed = (grey > threshold) & (score > MIN_CHANGE)
-    raw = changed & ~cast_shadow(changed, changed & shadow_like(img, ref, gain))
-    fig = figure_from_score(score, "reference", raw=raw, threshold=threshold, evidence=grey)
-    return enlarge(settle_rim(fig, img, ref * gain), full.shape)
+    changed = (grey > threshold) & (score > least)
+    if also is not None:
+        changed |= also
+    relit = reference * gain
+    changed &= ~cast_shadow(changed, changed & shadow_like(image, relit))
+    fig = figure_from_score(score, method, raw=changed, redo=redo, threshold=threshold,
+                            evidence=grey)
+    return settle_rim(fig, image, relit)
 
 
 def settle_rim(figure: Figure, image: np.ndarray, relit: np.ndarray) -> Figure:
@@ -620,7 +640,7 @@ def settle_rim(figure: Figure, image: np.ndarray, relit: np.ndarray) -> Figure:
     diff = image - relit
     d = np.sqrt(_channel_mean(diff * diff))
     depth = max(1, int(round(RIM_SHARE * max(d.shape))))
-    k = max(3, int(round(max(d.shape) / 50)) | 1)
+    k = _window(d.shape)
     inside = cv.erode(figure.mask, np.ones((3, 3), np.uint8), iterations=depth)
     weight = cv.blur(inside.astype(np.float32), (k, k))
     near = cv.blur(d * inside, (k, k)) / np.maximum(weight, 1e-6)
@@ -1073,13 +1093,9 @@ class BackgroundModel:
         score, gain = _light_residual(img, bg)
         relit = img / gain
         fg = self._mog.apply(_to_u8(relit), learningRate=0) == 255
-        grey = in_grey_levels(score, bg)
-        threshold = change_threshold(grey, floor=0.0)
-        fg |= (grey > threshold) & (score > np.maximum(MIN_CHANGE, self._steady))
-        fg &= ~cast_shadow(fg, fg & shadow_like(img, bg, gain))
-        fig = figure_from_score(score, "model", raw=fg, redo=redo, threshold=threshold,
-                                evidence=grey)
-        return enlarge(settle_rim(fig, img, bg * gain), full.shape)
+        fig = _figure_of_change(img, bg, score, gain, "model", redo=redo, also=fg,
+                                least=np.maximum(MIN_CHANGE, self._steady))
+        return enlarge(fig, full.shape)
 
     def _learn(self, img: np.ndarray) -> None:
         self._mog.apply(_to_u8(img), learningRate=-1)
