@@ -8,11 +8,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vtexp.coding import contour_modes
-from vtexp.encoding.height_contours import (count_lines, height_contours, lattice_shape,
-                                            line_heights, map_to_array, normalise_height,
-                                            reflectance, shape_from_shading, sharpen)
+from vtexp._cv2 import cv2
+from vtexp.encoding.height_contours import (count_lines, height_contours, is_flat,
+                                            lattice_shape, line_heights, map_to_array,
+                                            normalise_height, reflectance, relief,
+                                            shape_from_shading, sharpen)
 from vtexp.model import DeviceProfile
 from vtexp.safety import check_schedule
+from vtexp.stimuli import render_shape
 from vtexp.stimuli.surfaces import SURFACES, render_surface, surface_height
 
 PAD = DeviceProfile.load("pad_20x20")
@@ -180,3 +183,52 @@ def test_a_flat_object_is_shown_by_its_outline():
     cols = sorted({int(p.col) for p in pat.points})
     inner = [p for p in pat.points if rows[0] < p.row < rows[-1] and cols[0] < p.col < cols[-1]]
     assert pat.points and not inner                     # a ring, nothing inside
+
+
+def _lit_from_one_side(img, gain_from, gain_to, noise, seed):
+    """``img`` under a lamp to its left (a linear gain across the frame), blurred, with
+    sensor noise and JPEG at quality 70, as a camera gives it."""
+    cv = cv2()
+    ramp = np.linspace(gain_from, gain_to, img.shape[1], dtype=np.float32)[None, :]
+    lit = cv.GaussianBlur(img.astype(np.float32) * ramp, (0, 0), 1.0)
+    lit += np.random.default_rng(seed).normal(0, noise, lit.shape)
+    ok, buf = cv.imencode(".jpg", np.clip(np.round(lit), 0, 255).astype(np.uint8),
+                          [cv.IMWRITE_JPEG_QUALITY, 70])
+    return cv.imdecode(buf, cv.IMREAD_GRAYSCALE)
+
+
+@pytest.mark.parametrize("shape", ["circle", "square", "triangle", "rectangle"])
+def test_a_card_under_a_lamp_to_one_side_is_flat_and_played_by_its_outline(shape):
+    # A card brighter towards the lamp (0.8 -> 1.2 across the frame), with noise and JPEG:
+    # shape from shading alone reads the ramp and the noise as relief, and eq. 7's min-max
+    # normalisation makes any relief a full hill of three lines inside the outline.
+    clean = render_shape(shape=shape, width=640, height=480, size=0.5, background=40,
+                         foreground=170, rotation_deg=10)
+    lit = _lit_from_one_side(clean, 0.8, 1.2, 3.0, seed=4)
+    want = height_contours(clean, 20, 20)
+    got = height_contours(lit, 20, 20)
+    assert want.params["n_lines"] == 1 and want.params["flat"]
+    assert got.params["n_lines"] == 1 and got.params["flat"]
+    cells = lambda p: {(int(q.row), int(q.col)) for q in p.points}   # noqa: E731
+    a, b = cells(want), cells(got)
+    assert len(a & b) / len(a | b) >= 0.8                 # the clean card's outline
+
+
+@pytest.mark.parametrize("surface", ["ball", "vase"])
+def test_a_surface_under_a_lamp_to_one_side_keeps_its_relief(surface):
+    # Taking the light's ramp out is only a test of flatness: a shaded surface is still
+    # read from its own shading, ramp and all.
+    img = _lit_from_one_side(render_surface(surface=surface, width=640, height=480),
+                             0.8, 1.2, 3.0, seed=5)
+    pat = height_contours(img, 20, 20)
+    assert not pat.params["flat"] and pat.params["n_lines"] == 3
+
+
+def test_relief_is_the_rise_over_the_inscribed_radius():
+    m = np.zeros((41, 41), bool)
+    m[5:36, 5:36] = True
+    yy, xx = np.mgrid[0:41, 0:41]
+    z = np.where(m, np.minimum.reduce([yy - 4, 36 - yy, xx - 4, 36 - xx]), 0).astype(float)
+    assert relief(z, m) == pytest.approx(1.0, abs=0.08)    # a pyramid of slope 1
+    assert relief(np.zeros((41, 41)), m) == 0.0
+    assert is_flat(np.where(m, 1.0, 0.0).astype(np.float32), m)

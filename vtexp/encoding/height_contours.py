@@ -4,7 +4,8 @@ The pipeline, each step a function:
 
 1. :func:`reflectance` — gray image -> normalised brightness E and object mask.
 2. :func:`shape_from_shading` — E -> height map H (Tsai-Shah discretisation,
-   eqs. 1-6, light at the viewer).
+   eqs. 1-6, light at the viewer), unless :func:`is_flat` finds the object's
+   shading to be an uneven light and noise on a surface facing the camera.
 3. :func:`normalise_height` — eq. 7, min-max over the object.
 4. :func:`count_lines` — the variance rule, eqs. 8-9 and step (4): 1, 3 or 5 lines.
 5. :func:`line_heights` — eq. 10.
@@ -38,6 +39,12 @@ from .segment import given_mask
 VARIANCE_THRESHOLDS = (0.02, 0.06)
 # Seed 000 §2.2.2 rules (2) and (3).
 PROPORTION = 0.01
+#: An object is flat when shape from shading, once a planar light ramp is taken out of
+#: its brightness, rises from its outline to its top by less than this share of its
+#: inscribed radius (a mean slope under 19 degrees). The study's rendered surfaces rise
+#: 0.8-0.9 (ball, bowl, vase) and more (uneven); cards under a light ramp, with camera
+#: noise, blur and JPEG, 0.10-0.20 (docs/decisions.md).
+FLAT_RELIEF = 0.35
 
 
 class HeightContourParams(Model):
@@ -328,6 +335,78 @@ def shape_from_shading(e: np.ndarray, mask: np.ndarray, *, min_brightness: float
     return out
 
 
+def relief(z: np.ndarray, mask: np.ndarray) -> float:
+    """How far the object rises: its highest point over its inscribed radius (the largest
+    distance from its outline), both in working pixels; 0 for no object.
+
+    A hemisphere rises 1, a flat card 0. Shape from shading reads noise near E = 1 as
+    slopes (``sqrt(1/E^2 - 1)``: 0.14 at E = 0.99), so a camera's card rises a little.
+    """
+    cv = cv2()
+    m = np.asarray(mask, np.uint8)
+    if not m.any():
+        return 0.0
+    radius = float(cv.distanceTransform(m, cv.DIST_L2, 5).max())
+    return float(np.max(z[m > 0])) / max(radius, 1.0)
+
+
+def even_light(e: np.ndarray, mask: np.ndarray, *, calibrated: bool = False) -> np.ndarray:
+    """E with a planar light ramp taken out: ``log E`` over the object's pixels off its
+    rim fitted by a plane, E divided by the plane's slope (about the object's centre)
+    and normalised again to its 99th percentile, as the albedo is estimated
+    (:func:`reflectance`); with a ``calibrated`` albedo it is not normalised again.
+
+    Seed 000 assumes one light at the viewer (assumption 2), under which a surface
+    facing the camera is evenly bright. A lamp to one side brightens a card towards it;
+    shape from shading reads the ramp as a slope. A ball's shading is symmetric about
+    its centre and has no planar part to take out. Returns E unchanged for an object
+    under 12 pixels off its rim.
+    """
+    cv = cv2()
+    m = np.asarray(mask, bool)
+    inner = cv.erode(m.astype(np.uint8), _EIGHT).astype(bool) & (e > 0)
+    if inner.sum() < 12:
+        return e
+    ys, xs = np.nonzero(inner)
+    yc, xc = ys.mean(), xs.mean()
+    a = np.column_stack([np.ones(ys.size), xs - xc, ys - yc])
+    coef, *_ = np.linalg.lstsq(a, np.log(e[inner].astype(np.float64)), rcond=None)
+    yy, xx = np.mgrid[0:e.shape[0], 0:e.shape[1]]
+    evened = e * np.exp(-(coef[1] * (xx - xc) + coef[2] * (yy - yc))).astype(np.float32)
+    top = 1.0 if calibrated else float(np.percentile(evened[m], 99))
+    return np.clip(evened / max(top, 1e-6), 0.0, 1.0).astype(np.float32) * m
+
+
+def is_flat(e: np.ndarray, mask: np.ndarray, *, min_brightness: float = 0.02,
+            calibrated: bool = False) -> bool:
+    """Whether the object is a flat surface facing the camera: shape from shading of its
+    inside (the object less its outermost working pixels) rises under
+    :data:`FLAT_RELIEF` (:func:`relief`) once a planar light ramp is taken out of E
+    (:func:`even_light`; ``calibrated``: the albedo was given).
+
+    Seed 000's pipeline min-max normalises heights (eq. 7), so any rise, however small,
+    becomes a full hill with its three contour lines: a card lit from one side, or
+    merely with a camera's noise, was played as a mound inside its outline, never as the
+    outline a flat object gives (:func:`normalise_height`). A flat object keeps
+    ``Z = 0`` and so its outline.
+
+    The outermost working pixels are left out of the test: they are the object's edge
+    seen in part, or a figure mask's fringe of shadow and ground, whose darkness shape
+    from shading reads as a cliff, and a speck or a spur one working pixel wide would
+    rise alone to the slope of its darkness.
+    """
+    cv = cv2()
+    m = np.asarray(mask, bool)
+    inner = cv.erode(m.astype(np.uint8), _EIGHT).astype(bool)
+    if inner.sum() < 12:
+        inner = m
+    if not inner.any():
+        return False
+    z = shape_from_shading(even_light(np.where(inner, e, 0.0), inner, calibrated=calibrated),
+                           inner, min_brightness=min_brightness)
+    return relief(z, inner) < FLAT_RELIEF
+
+
 def normalise_height(height: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Min-max normalisation of the height matrix (seed 000 eq. 7).
 
@@ -509,9 +588,11 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
         mask = None if mask is None else mask[:m - m % f, :n - n % f]
     wh = (g.shape[1] // f, g.shape[0] // f)
     e, mask = reflectance(g, size=wh, albedo=albedo, ambient=ambient, mask=mask)
-    z = shape_from_shading(e, mask, min_brightness=min_brightness)
+    flat = is_flat(e, mask, min_brightness=min_brightness, calibrated=albedo is not None)
+    z = (np.zeros(e.shape, np.float32) if flat
+         else shape_from_shading(e, mask, min_brightness=min_brightness))
     return _contour_pattern(z, mask, rows, cols, f=f, wh=wh, lattice=(lr, lc), lines=lines,
-                            levels=levels, proportion=proportion, align=align,
+                            levels=levels, proportion=proportion, align=align, flat=flat,
                             given={"lines": lines, "levels": levels, "proportion": proportion,
                                    "cells_per_motor": cells_per_motor, "align": align,
                                    "albedo": albedo, "ambient": ambient})
@@ -556,7 +637,8 @@ def height_contours_of_heights(height: np.ndarray, mask: np.ndarray, rows: int, 
 
 def _contour_pattern(z: np.ndarray, mask: np.ndarray, rows: int, cols: int, *, f: int,
                      wh: tuple[int, int], lattice: tuple[int, int], lines, levels: str,
-                     proportion: float, align: str, given: dict) -> Pattern:
+                     proportion: float, align: str, given: dict,
+                     flat: bool | None = None) -> Pattern:
     """Steps 3-7 on a height map at the working resolution ``wh`` (reduced ``f`` times)."""
     lr, lc = lattice
     h = normalise_height(z, mask)
@@ -577,6 +659,7 @@ def _contour_pattern(z: np.ndarray, mask: np.ndarray, rows: int, cols: int, *, f
                 "col": [round(cs, 9), round(c0 + 0.5 * cs - 0.5, 9)]}
     return Pattern.model_validate({
         "rows": rows, "cols": cols, "points": points, "pipeline": "height-contours",
-        "params": {**given, "n_lines": n_lines, "variance": round(var, 6),
+        "params": {**given, **({} if flat is None else {"flat": flat}),
+                   "n_lines": n_lines, "variance": round(var, 6),
                    "line_heights": [round(t, 6) for t in tps], "lattice": [lr, lc],
                    "to_array": to_array}})
