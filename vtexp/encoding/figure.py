@@ -386,10 +386,15 @@ def shadow_like(image: np.ndarray, relit: np.ndarray) -> np.ndarray:
         out &= chroma <= SHADOW_CHROMA
     k = _window(image.shape)
     gi, gr = _channel_mean(image), _channel_mean(relit)
-    mi, mr = cv.blur(gi, (k, k)), cv.blur(gr, (k, k))
-    vi = cv.blur(gi * gi, (k, k)) - mi * mi
-    vr = cv.blur(gr * gr, (k, k)) - mr * mr
-    cov = cv.blur(gi * gr, (k, k)) - mi * mr
+    # The texture is compared over the window's shadow-like pixels only: beside the
+    # object, the object's own pixels in the window would hide the shadow's texture.
+    w = out.astype(np.float32)
+    sw = np.maximum(cv.blur(w, (k, k)), np.float32(1e-6))
+    wi, wr = w * gi, w * gr
+    mi, mr = cv.blur(wi, (k, k)) / sw, cv.blur(wr, (k, k)) / sw
+    vi = cv.blur(wi * gi, (k, k)) / sw - mi * mi
+    vr = cv.blur(wr * gr, (k, k)) / sw - mr * mr
+    cov = cv.blur(wi * gr, (k, k)) / sw - mi * mr
     ncc = cov / np.sqrt(np.maximum(vi, 1e-6) * np.maximum(vr, 1e-6))
     return out & ((ncc >= SHADOW_NCC) | (vr < SHADOW_FLAT ** 2))
 
