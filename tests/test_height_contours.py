@@ -11,7 +11,7 @@ from vtexp.coding import contour_modes
 from vtexp._cv2 import cv2
 from vtexp.encoding.height_contours import (count_lines, height_contours, is_flat,
                                             lattice_shape, line_heights, map_to_array,
-                                            normalise_height, reflectance, relief,
+                                            normalise_height, reflectance,
                                             shape_from_shading, sharpen)
 from vtexp.model import DeviceProfile
 from vtexp.safety import check_schedule
@@ -224,11 +224,13 @@ def test_a_surface_under_a_lamp_to_one_side_keeps_its_relief(surface):
     assert not pat.params["flat"] and pat.params["n_lines"] == 3
 
 
-def test_relief_is_the_rise_over_the_inscribed_radius():
-    m = np.zeros((41, 41), bool)
-    m[5:36, 5:36] = True
-    yy, xx = np.mgrid[0:41, 0:41]
-    z = np.where(m, np.minimum.reduce([yy - 4, 36 - yy, xx - 4, 36 - xx]), 0).astype(float)
-    assert relief(z, m) == pytest.approx(1.0, abs=0.08)    # a pyramid of slope 1
-    assert relief(np.zeros((41, 41)), m) == 0.0
-    assert is_flat(np.where(m, 1.0, 0.0).astype(np.float32), m)
+def test_flat_is_a_median_tilt_under_22_degrees_once_the_light_ramp_is_out():
+    m = np.zeros((60, 80), bool)
+    m[10:50, 10:70] = True
+    x = np.linspace(0, 1, 80, dtype=np.float32)[None, :]
+    lamp = np.where(m, 0.7 + 0.3 * x, 0).astype(np.float32)      # E 0.7 -> 1 across it
+    assert is_flat(lamp, m)
+    assert not is_flat(np.where(m, 0.9, 0).astype(np.float32), m, calibrated=True)
+    assert is_flat(np.where(m, 0.9, 0).astype(np.float32), m)   # the albedo estimated
+    e, ball = reflectance(render_surface(surface="ball"), size=(80, 60))
+    assert not is_flat(e, ball)
