@@ -93,9 +93,10 @@ LIVE_WORK_PX = 240
 #: ``bench/scenes.py``; docs/decisions.md): the frame is darker than the relit
 #: reference by a gain in SHADOW_GAIN; its colour (chromaticity, the channels over
 #: their sum, 3x3 means) moved by at most SHADOW_CHROMA; and the reference's texture
-#: is kept (normalised cross-correlation of the gray levels over a window of about
-#: 1/50 of the longer side at least SHADOW_NCC) or there is none to keep (the
-#: reference's local standard deviation under SHADOW_FLAT grey levels).
+#: is kept (normalised cross-correlation of the gray levels over the pixels that pass
+#: the first two tests in a window of about 1/50 of the longer side, at least
+#: SHADOW_NCC) or there is none to keep (the reference's local standard deviation there
+#: under SHADOW_FLAT grey levels).
 SHADOW_GAIN = (0.3, 1.0)
 SHADOW_CHROMA = 0.06
 SHADOW_NCC = 0.5
