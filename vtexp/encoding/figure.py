@@ -575,7 +575,8 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
        square over the channels (brightness and colour ratio, :func:`change_score`);
     3. threshold at median + 8 x 1.4826 x MAD of the score in grey levels
        (:func:`in_grey_levels`; the note thresholds the log-ratio itself), and at a
-       log-ratio of at least MIN_CHANGE; changed pixels that look like the reference
+       log-ratio of at least MIN_CHANGE, or where the frame hides the reference's
+       texture (:func:`texture_hidden`); changed pixels that look like the reference
        in shadow are not the object (:func:`shadow_like`) unless they reach too far
        from the rest (:func:`cast_shadow`; vtexp's additions);
     4. close and open, the largest part kept, holes filled (:func:`clean_mask`);
