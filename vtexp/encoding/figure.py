@@ -411,8 +411,20 @@ def shadow_like(image: np.ndarray, relit: np.ndarray) -> np.ndarray:
     return out & ((ncc >= SHADOW_NCC) | (vr < SHADOW_FLAT ** 2))
 
 
-def texture_hidden(image: np.ndarray, relit: np.ndarray) -> np.ndarray:
-    """Where ``image`` hides the texture of the reference ``relit``: a bool (H, W) mask.
+def grey_texture(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, standard deviation) of the grey levels of ``image`` over a window of about
+    1/50 of the longer side, each (H, W) float32: what :func:`texture_hidden` compares."""
+    cv = cv2()
+    k = _window(image.shape)
+    g = _channel_mean(image)
+    m = cv.blur(g, (k, k))
+    return m, np.sqrt(np.maximum(cv.blur(g * g, (k, k)) - m * m, 0.0))
+
+
+def texture_hidden(image: np.ndarray, reference: np.ndarray,
+                   texture: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Where ``image`` hides the texture of ``reference``: a bool (H, W) mask.
+    ``texture``: the reference's :func:`grey_texture`, if already known.
 
     A flat object over a textured ground of nearly its colour changes the grey levels
     by little more than the texture's own contrast, under the threshold the frame's
@@ -421,13 +433,9 @@ def texture_hidden(image: np.ndarray, relit: np.ndarray) -> np.ndarray:
     side, where the reference's grey levels vary by at least TEXTURE_MIN (standard
     deviation), the frame's variation relative to its mean is under TEXTURE_KEPT of
     the reference's. Relative to the mean, so that a shadow, which darkens the texture
-    with the ground, keeps it; a change of light does too."""
-    cv = cv2()
-    k = _window(image.shape)
-    gi, gr = _channel_mean(image), _channel_mean(relit)
-    mi, mr = cv.blur(gi, (k, k)), cv.blur(gr, (k, k))
-    si = np.sqrt(np.maximum(cv.blur(gi * gi, (k, k)) - mi * mi, 0.0))
-    sr = np.sqrt(np.maximum(cv.blur(gr * gr, (k, k)) - mr * mr, 0.0))
+    with the ground, keeps it; a change of light or exposure does too."""
+    mr, sr = grey_texture(reference) if texture is None else texture
+    mi, si = grey_texture(image)
     return (sr >= TEXTURE_MIN) & (si * (mr + 1) < TEXTURE_KEPT * sr * (mi + 1))
 
 
@@ -641,16 +649,19 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
 def _figure_of_change(image: np.ndarray, reference: np.ndarray, score: np.ndarray,
                       gain: np.ndarray, method: str, *, least: float | np.ndarray = MIN_CHANGE,
                       also: np.ndarray | None = None,
-                      redo: str = "capture the empty stage again") -> Figure:
+                      redo: str = "capture the empty stage again",
+                      texture: tuple[np.ndarray, np.ndarray] | None = None) -> Figure:
     """Steps 3-5 of :func:`figure_from_reference` on reduced frames, shared with
     :class:`BackgroundModel`: changed where the score in grey levels passes its
     threshold and the log-ratio ``least`` (a number or per pixel), where the frame
     hides the reference's texture (:func:`texture_hidden`), or where ``also`` says so;
-    shadows beside the object left out; cleaned; the rim settled."""
+    shadows beside the object left out; cleaned; the rim settled. ``texture``: the
+    reference's :func:`grey_texture`, if already known."""
     grey = in_grey_levels(score, reference)
     threshold = change_threshold(grey, floor=0.0)
     relit = reference * gain
-    changed = ((grey > threshold) & (score > least)) | texture_hidden(image, relit)
+    changed = ((grey > threshold) & (score > least)) | texture_hidden(image, reference,
+                                                                       texture)
     if also is not None:
         changed |= also
     changed &= ~cast_shadow(changed, changed & shadow_like(image, relit))
@@ -1103,6 +1114,7 @@ class BackgroundModel:
         self._background: np.ndarray | None = None
         self._sums: list[np.ndarray] = []       # of log-brightness and its square, learning
         self._steady: np.ndarray | None = None  # the ratio test's per-pixel threshold
+        self._texture: tuple | None = None      # the background's grey_texture
 
     @property
     def learning(self) -> bool:
@@ -1132,8 +1144,11 @@ class BackgroundModel:
         score, gain = _light_residual(img, bg)
         relit = img / gain
         fg = self._mog.apply(_to_u8(relit), learningRate=0) == 255
+        if self._texture is None:
+            self._texture = grey_texture(bg)
         fig = _figure_of_change(img, bg, score, gain, "model", redo=redo, also=fg,
-                                least=np.maximum(MIN_CHANGE, self._steady))
+                                least=np.maximum(MIN_CHANGE, self._steady),
+                                texture=self._texture)
         return enlarge(fig, full.shape)
 
     def _learn(self, img: np.ndarray) -> None:
