@@ -393,8 +393,7 @@ def is_flat(e: np.ndarray, mask: np.ndarray, *, min_brightness: float = 0.02,
         inner = m
     if not inner.any():
         return False
-    evened = even_light(np.where(inner, e, 0.0).astype(np.float32), inner,
-                        calibrated=calibrated)[inner]
+    evened = even_light(e, inner, calibrated=calibrated)[inner]
     slope = np.sqrt(1.0 / np.square(np.clip(evened, min_brightness, 1.0)) - 1.0)
     return float(np.median(slope)) < FLAT_SLOPE
 
@@ -584,10 +583,10 @@ def height_contours(gray: np.ndarray, rows: int, cols: int, *, lines="variance",
     z = (np.zeros(e.shape, np.float32) if flat
          else shape_from_shading(e, mask, min_brightness=min_brightness))
     return _contour_pattern(z, mask, rows, cols, f=f, wh=wh, lattice=(lr, lc), lines=lines,
-                            levels=levels, proportion=proportion, align=align, flat=flat,
+                            levels=levels, proportion=proportion, align=align,
                             given={"lines": lines, "levels": levels, "proportion": proportion,
                                    "cells_per_motor": cells_per_motor, "align": align,
-                                   "albedo": albedo, "ambient": ambient})
+                                   "albedo": albedo, "ambient": ambient, "flat": flat})
 
 
 def height_contours_of_heights(height: np.ndarray, mask: np.ndarray, rows: int, cols: int, *,
@@ -629,8 +628,7 @@ def height_contours_of_heights(height: np.ndarray, mask: np.ndarray, rows: int, 
 
 def _contour_pattern(z: np.ndarray, mask: np.ndarray, rows: int, cols: int, *, f: int,
                      wh: tuple[int, int], lattice: tuple[int, int], lines, levels: str,
-                     proportion: float, align: str, given: dict,
-                     flat: bool | None = None) -> Pattern:
+                     proportion: float, align: str, given: dict) -> Pattern:
     """Steps 3-7 on a height map at the working resolution ``wh`` (reduced ``f`` times)."""
     lr, lc = lattice
     h = normalise_height(z, mask)
@@ -651,7 +649,6 @@ def _contour_pattern(z: np.ndarray, mask: np.ndarray, rows: int, cols: int, *, f
                 "col": [round(cs, 9), round(c0 + 0.5 * cs - 0.5, 9)]}
     return Pattern.model_validate({
         "rows": rows, "cols": cols, "points": points, "pipeline": "height-contours",
-        "params": {**given, **({} if flat is None else {"flat": flat}),
-                   "n_lines": n_lines, "variance": round(var, 6),
+        "params": {**given, "n_lines": n_lines, "variance": round(var, 6),
                    "line_heights": [round(t, 6) for t in tps], "lattice": [lr, lc],
                    "to_array": to_array}})
