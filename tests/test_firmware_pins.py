@@ -17,7 +17,9 @@ about what the firmware or the host believe:
 
 from __future__ import annotations
 
+import os
 import random
+import signal
 import time
 
 import numpy as np
@@ -228,6 +230,31 @@ def test_a_schedule_past_the_chips_limits_is_refused_at_upload(profile, pulse, s
         assert not on[:, 3 * 20 + 7].any()
     else:
         assert [t.index for t in fwtrace.trains(tr)] == [0]
+
+def test_a_starved_chip_loses_the_time_and_never_runs_faster_than_the_wall():
+    """The simulator's process stopped for half a second, as a busy computer starves it:
+    the chip's clock stands still, then goes on at the wall's pace. Caught up, it would
+    run faster than any crystal, and every interval the host times on the wall (a train
+    it cuts at its maximum on-time, a heartbeat) would be longer on the chip's clock."""
+    with AvrSimulator(SMA.name) as sim:
+        time.sleep(0.3)
+        os.kill(sim.proc.pid, signal.SIGSTOP)
+        try:
+            time.sleep(0.5)
+        finally:
+            os.kill(sim.proc.pid, signal.SIGCONT)
+        time.sleep(0.6)
+    tr = fwtrace.Trace.load(sim.trace_path)
+    steps = [(fwtrace.us(c1 - c0) / 1000.0, (w1 - w0) / 1e6)
+             for (c0, w0), (c1, w1) in zip(tr.wall, tr.wall[1:])]   # (chip ms, wall ms)
+    assert len(steps) >= 8
+    # the stop is seen: one 100 ms step of the chip's took the wall 0.5 s
+    assert max(w - c for c, w in steps) > 400, steps
+    assert tr.end["lost_ns"] > 400e6
+    # and no step of the chip's clock is shorter on the wall than on the chip, beyond the
+    # 2 ms of lag it may catch up
+    assert all(c <= w + 2.5 for c, w in steps), steps
+
 
 # --------------------------------------------------------------------------- off
 

@@ -11,7 +11,9 @@
  *    by side): host bytes are fed to the UART only while it signals room (XON), device
  *    bytes go to the pty;
  *  - paces simulated time to the wall clock (the firmware's clock is its 16 MHz
- *    crystal; the host's heartbeat and timeouts are wall time), unless --fast; with
+ *    crystal; the host's heartbeat and timeouts are wall time), unless --fast, and
+ *    never faster: a lag of more than 2 ms (the process starved of the CPU) is lost,
+ *    not caught up, as a crystal never runs fast ("lost_ns" at the end); with
  *    --lockstep FILE, the host keeps time by the chip instead: FILE holds two
  *    little-endian 64-bit counts of cycles, the chip's (written here after each step)
  *    and how far the host allows it to run (written by the host, vtexp's
@@ -105,6 +107,10 @@ static avr_irq_t *uart_in;
 static uint8_t spi_buf[4096];
 static uint16_t spi_n;
 static int64_t max_lag_ns;
+static uint64_t lost_ns;                   /* wall time the chip lost, starved */
+/* How far behind the wall the chip may be and still catch up (at the computer's
+ * speed): more is lost (see the main loop). */
+#define LAG_KEPT_NS 2000000LL
 static uint32_t *profile;                  /* samples per flash word address, --profile */
 static avr_cycle_count_t next_sample;
 /* Tick latency: cycles from Timer1 compare A raised to its handler entered (an edge
@@ -452,10 +458,18 @@ int main(int argc, char **argv)
     while (!vt_pty_stopping) {
         uint64_t sim_ns = avr->cycle * 1000ULL / (MHZ / 1000000ULL);
         uint64_t wall_ns = vt_mono_ns() - t0;
-        int64_t ahead = (fast || step) ? 0 : (int64_t)sim_ns - (int64_t)wall_ns;
+        int64_t ahead = (fast || step) ? 0 : (int64_t)sim_ns - (int64_t)(wall_ns - lost_ns);
         uint64_t allow = step ? step->allow : UINT64_MAX;
         if (-ahead > max_lag_ns && !step)
             max_lag_ns = -ahead;
+        if (-ahead > LAG_KEPT_NS && !step) {
+            /* Starved of the CPU, the chip fell behind: the time is lost, not caught up
+               by running faster than the wall. A chip's crystal never runs fast; catching
+               up would stretch every wall-timed interval of the host's (a heartbeat, a
+               train the host cuts at its maximum on-time) on the chip's clock. */
+            lost_ns += (uint64_t)(-ahead - LAG_KEPT_NS);
+            ahead = -LAG_KEPT_NS;
+        }
         if (ahead <= 50000 && avr->cycle < allow) {
             /* run at most 100 us of simulated time (in lockstep: no further than the host
                allows), then look at the wall and the pty */
@@ -528,10 +542,11 @@ int main(int argc, char **argv)
         fputs("}}\n", trace);
     }
     trace_line("\"e\":\"end\",\"rx\":%llu,\"tx\":%llu,\"dropped\":%llu,\"corrupted\":%llu,"
-               "\"inserted\":%llu,\"max_lag_ns\":%lld",
+               "\"inserted\":%llu,\"max_lag_ns\":%lld,\"lost_ns\":%llu",
                (unsigned long long)pty.n_rx, (unsigned long long)pty.n_tx,
                (unsigned long long)pty.n_dropped, (unsigned long long)pty.n_corrupted,
-               (unsigned long long)pty.n_inserted, (long long)max_lag_ns);
+               (unsigned long long)pty.n_inserted, (long long)max_lag_ns,
+               (unsigned long long)lost_ns);
     if (trace)
         fclose(trace);
     if (profile) {
@@ -544,6 +559,7 @@ int main(int argc, char **argv)
     }
     vt_pty_close(&pty);
     fprintf(stderr, "vtexp-simavr: stopped after %.3f s simulated (max lag behind the wall "
-                    "clock %.1f ms)\n", (double)avr->cycle / MHZ, (double)max_lag_ns / 1e6);
+                    "clock %.1f ms, %.1f ms lost)\n", (double)avr->cycle / MHZ,
+            (double)max_lag_ns / 1e6, (double)lost_ns / 1e6);
     return 0;
 }
