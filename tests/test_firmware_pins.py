@@ -243,13 +243,14 @@ def test_a_starved_chip_loses_the_time_and_never_runs_faster_than_the_wall():
             time.sleep(0.5)
         finally:
             os.kill(sim.proc.pid, signal.SIGCONT)
-        time.sleep(0.6)
+        time.sleep(0.8)
     tr = fwtrace.Trace.load(sim.trace_path)
     steps = [(fwtrace.us(c1 - c0) / 1000.0, (w1 - w0) / 1e6)
              for (c0, w0), (c1, w1) in zip(tr.wall, tr.wall[1:])]   # (chip ms, wall ms)
-    assert len(steps) >= 8
-    # the stop is seen: one 100 ms step of the chip's took the wall 0.5 s
-    assert max(w - c for c, w in steps) > 400, steps
+    # the stop is seen: one 100 ms step of the chip's took the wall 0.5 s, and the chip
+    # went on after it (on a busy computer more slowly than the wall: 100 ms in 145)
+    stop = max(range(len(steps)), key=lambda i: steps[i][1] - steps[i][0])
+    assert steps[stop][1] - steps[stop][0] > 400 and len(steps) - stop > 2, steps
     assert tr.end["lost_ns"] > 400e6
     # and no step of the chip's clock is shorter on the wall than on the chip, beyond the
     # 2 ms of lag it may catch up
