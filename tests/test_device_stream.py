@@ -71,27 +71,30 @@ def test_a_stalled_host_is_switched_off_by_the_devices_watchdog_before_any_limit
     """The loop stops checking in while a pin is on: no heartbeat keeps the emulated
     device's session alive, its watchdog switches everything off, well before the pin's
     max on-time; the next frame says what happened."""
-    from vtexp.errors import DeviceError
+    from vtexp.errors import StreamCut
 
     clock = VirtualClock()
     with open_device("emulator", SMA, clock=clock) as dev:
         dev.stream({(2, 2): TRAIN})
         clock.sleep(0.6)                                 # stalled: no frame, no check-in
         assert dev.emulator.all_outputs_off()
-        with pytest.raises(DeviceError):
+        with pytest.raises(StreamCut) as cut:
             dev.stream({(2, 2): TRAIN})
         history = emulator_changes(dev, SMA)
     on = [t for t, k, d in history if d is not None]
     off = [t for t, k, d in history if d is None]
     assert off[0] - on[0] <= dev.stream_watchdog_ms() + dev.stream_checkin_ms + 20
+    # the error says when the device switched off, on its clock (a live record's all-off)
+    assert cut.value.off_at_ms == pytest.approx(off[0], abs=0.001)
     clock = VirtualClock()
     with open_device("sim", SMA, clock=clock) as sim:
         sim.stream({(2, 2): TRAIN})
         clock.sleep(0.3)
-        with pytest.raises(DeviceError, match="watchdog"):
+        with pytest.raises(StreamCut, match="watchdog") as cut:
             sim.stream({(2, 2): TRAIN})
         wd = [e for e in sim.history if e.kind == "watchdog"]
         assert len(wd) == 1 and sim.state.max() == 0
+        assert cut.value.off_at_ms == wd[0].t_ms
 
 
 def test_a_play_after_a_stream_waits_for_the_pins_to_cool():

@@ -277,6 +277,35 @@ def test_every_change_is_accounted_for(videos, play):
         assert st.degradations["budget"] > 0
 
 
+def test_a_stall_the_devices_watchdog_ends_is_recorded_when_the_device_switched_off(videos):
+    """The loop stalls (a frame that takes 0.5 s to encode) while pins are held on: the
+    device's watchdog switches everything off, the loop opens it again and goes on, and the
+    record's all-off is stamped on the device's clock when the watchdog did it, not left
+    without a time (audited on the device's clock, the pins would have seemed on until the
+    next frame the device acknowledged)."""
+    path, _ = videos["rectangle"]
+    setup = LiveSetup.make("snake-corners", play="hold")
+    clock = VirtualClock()
+    enc = LiveEncoder(setup)
+    plain = enc.process
+
+    def slow(gray, **kw):
+        if kw.get("frame") == 20:
+            clock.sleep(0.5)
+        return plain(gray, **kw)
+
+    enc.process = slow
+    events = []
+    with open_device("sim", setup.profile, clock=clock) as dev:
+        st = LiveRun(open_source(str(path)), enc, dev,
+                     sinks=[lambda kind, e: events.append((kind, e))]).run()
+        cut = [e.t_ms for e in dev.history if e.kind == "watchdog"]
+    assert st.reconnects == 1 and len(cut) == 1
+    offs = [e for kind, e in events if kind == "output" and e["frame"] is None
+            and e["on"] == 0 and e["changed"] > 0]
+    assert offs[0]["t_device_ms"] == cut[0]
+
+
 @pytest.mark.realtime
 def test_the_horse_held_live_degrades_and_nothing_unsafe_is_sent(
         tmp_path, videos):

@@ -73,6 +73,22 @@ class DeviceError(VtexpError):
     exit_code = 3
 
 
+class StreamCut(DeviceError):
+    """The device's watchdog switched every actuator off during a live stream (the host
+    fell silent for longer than the watchdog).
+
+    Attributes
+    ----------
+    off_at_ms:
+        When it did, on the device's clock in ms (its alarm's time), or None if the
+        device did not say: a live record stamps its all-off with it.
+    """
+
+    def __init__(self, message: str, *, off_at_ms: float | None = None):
+        super().__init__(message)
+        self.off_at_ms = off_at_ms
+
+
 class PlayInterrupted(DeviceError):
     """The device stopped a play part-way (its watchdog fired): every actuator is off.
 

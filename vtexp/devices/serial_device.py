@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from ..clock import REAL, Clock
-from ..errors import DeviceError, InputError, PlayInterrupted, SessionAborted
+from ..errors import DeviceError, InputError, PlayInterrupted, SessionAborted, StreamCut
 from ..model import (
     DeviceInfo,
     DeviceProfile,
@@ -222,6 +222,8 @@ class SerialDevice(DeviceBase):
         # Set when the device's watchdog ended the session (ALARM, or NAK NO_SESSION):
         # this computer sent nothing for watchdog_ms, and the device turned everything off.
         self._session_ended: str | None = None
+        #: When the device's watchdog switched everything off (its alarm's time, device ms).
+        self._ended_at_ms: float | None = None
         # Recoveries above the link: onsets asked for again, PLAY_DONE replaced by STATUS,
         # sessions started again after the device's watchdog ended one between plays.
         self.recovered = {"onsets_fetched": 0, "status_polls": 0, "sessions_renewed": 0}
@@ -239,6 +241,7 @@ class SerialDevice(DeviceBase):
 
         self._lost_reported = False
         self._session_ended = None
+        self._ended_at_ms = None
         try:
             port = open_port(self.port, baudrate=self.baudrate, clock=self.clock)
         except (ValueError, OSError) as e:      # pyserial's SerialException is an OSError
@@ -423,7 +426,7 @@ class SerialDevice(DeviceBase):
         """A new session after the device's watchdog ended the last one."""
         if self._streaming:
             self._session_ended = None
-            raise DeviceError(self._watchdog_message())
+            raise self._stream_cut()
         hello = self._handshake(link)
         self._check_against_profile(hello)
         self.hello = hello
@@ -443,6 +446,7 @@ class SerialDevice(DeviceBase):
             self.alarms.append(msg)
             if msg.code == wire.AlarmCode.WATCHDOG:
                 self._session_ended = "ALARM WATCHDOG"
+                self._ended_at_ms = msg.t_us / 1000.0
                 if st is not None:
                     st.alarm_us = msg.t_us
 
@@ -788,7 +792,12 @@ class SerialDevice(DeviceBase):
             raise self._lost(self._link.lost)
         if self._session_ended is not None:
             self._session_ended = None
-            raise DeviceError(self._watchdog_message())
+            raise self._stream_cut()
+
+    def _stream_cut(self) -> StreamCut:
+        """The stream's end by the device's watchdog, with when its alarm said it was."""
+        off_at, self._ended_at_ms = self._ended_at_ms, None
+        return StreamCut(self._watchdog_message(), off_at_ms=off_at)
 
     def _set_outputs(self, changes, *, full: bool = False) -> float:
         # Offsets first: a device that applies a frame's changes one after another (or a

@@ -14,7 +14,8 @@ device's clock follows it, and each frame's changes are recorded (a ``frame``
 event with ``{(row, col): drive or None}``) at the time they were applied. Like a
 device's firmware, it has a watchdog while it streams (``stream_watchdog``, ms):
 when the host's loop has not checked in for that long, everything went off then (a
-``watchdog`` event at that time) and the next call raises ``DeviceError``.
+``watchdog`` event at that time) and the next call raises ``StreamCut`` (a
+``DeviceError``) saying when.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..clock import REAL, Clock
-from ..errors import DeviceError, SessionAborted
+from ..errors import DeviceError, SessionAborted, StreamCut
 from ..model import DeviceInfo, DeviceProfile, PlayedPulse, PlayReport, Pulse, Schedule
 from .base import DeviceBase
 
@@ -143,8 +144,9 @@ class SimDevice(DeviceBase):
         if wd is not None and last is not None and now - last > wd:
             self.state[:] = 0.0
             self.history.append(SimEvent(last + wd, "watchdog"))
-            raise DeviceError(f"the sim's watchdog switched everything off: the host's loop "
-                              f"was silent for {now - last:.0f} ms (watchdog {wd:g} ms)")
+            raise StreamCut(f"the sim's watchdog switched everything off: the host's loop "
+                            f"was silent for {now - last:.0f} ms (watchdog {wd:g} ms)",
+                            off_at_ms=last + wd)
 
     def _set_outputs(self, changes, *, full: bool = False) -> float:
         t = self._now_ms()

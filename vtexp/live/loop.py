@@ -388,8 +388,10 @@ class LiveRun:
         st.reconnects += 1
         st.last_notes = [f"device: {error}"[:160], "reconnected: every actuator was off"]
         st.last_notes_at = self.clock.now()
+        # the device's watchdog says when it switched everything off, on its clock
         self._emit("output", {
-            "t_host": self.clock.now(), "t_device_ms": None, "t_onset_host": None,
+            "t_host": self.clock.now(), "t_device_ms": getattr(error, "off_at_ms", None),
+            "t_onset_host": None,
             "frame": None, "changed": len(self._applied), "on": 0, "applied": {},
             "degradations": [], "latency_ms": None, "latency_frame": None})
         self._applied = {}
