@@ -347,11 +347,12 @@ def test_the_horse_held_live_degrades_and_nothing_unsafe_is_sent(
                 PulseTrain(amplitude_v=a / 1000, frequency_hz=f / 100, pulse_width_ms=w / 1000)
                 if a else None) for t, i, _, a, f, w in done["actuations"]]
     kinds = res.stats.degradations
-    # A pin cut at max_on_ms and asked again is held off: "rest" while its rest lasts
-    # longer than its cooling, else "cooling". Which one depends on how late the loop
-    # turned it off, so on the machine's load (unloaded 8 and 7 here; with five busy
-    # processes on two cores 2 and 0; a full suite once 0 rest): count both.
-    assert kinds["max_on"] > 0 and kinds["rest"] + kinds["cooling"] > 0 and kinds["budget"] > 0
+    # A pin cut at max_on_ms rests before it goes on again: check_schedule below holds
+    # every pause of the panel's to min_off_ms. The loop says "rest" or "cooling" only if
+    # a frame asks for the pin while it rests, which depends on the machine's load
+    # (unloaded 8 and 7 here; with five busy processes on two cores 2 and 0; a full suite
+    # 0 and 0): not counted.
+    assert kinds["max_on"] > 0 and kinds["budget"] > 0
     audited = outputs_schedule(history, SMA)
     check_schedule(audited, SMA)
     rec = load_record(tmp_path / "rec")
