@@ -231,6 +231,7 @@ def test_a_schedule_past_the_chips_limits_is_refused_at_upload(profile, pulse, s
     else:
         assert [t.index for t in fwtrace.trains(tr)] == [0]
 
+
 def test_a_starved_chip_loses_the_time_and_never_runs_faster_than_the_wall():
     """The simulator's process stopped for half a second, as a busy computer starves it:
     the chip's clock stands still, then goes on at the wall's pace. Caught up, it would

@@ -432,6 +432,7 @@ class SerialDevice(DeviceBase):
         self.hello = hello
         self._outputs = [self._off] * (self.profile.rows * self.profile.cols)
         self._session_ended = None
+        self._ended_at_ms = None            # that trip's time is no stream's
         self.recovered["sessions_renewed"] += 1
 
     # -- events (reader thread) -------------------------------------------------------------
