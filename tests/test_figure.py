@@ -219,6 +219,40 @@ def test_a_card_over_a_texture_of_its_own_grey_is_found_by_the_texture_it_hides(
     assert figure_from_reference(shoot(lens[1], 1.0, 3), reference).empty
 
 
+@pytest.mark.parametrize("tone", [180, 190])
+def test_a_grey_card_over_a_pale_wall_is_not_taken_for_its_shadow(tone):
+    # A light grey circle with a soft shadow, on scikit-image's astronaut, half over the
+    # pale wall behind her: there it is a darker patch of the wall's colour on a ground
+    # without texture, as a shadow is, beside the rest of the card, and was taken for the
+    # card's shadow (IoU 0.55-0.58). No shadow beside its object is that thick with edges
+    # that sharp; the shadow itself stays out, and the empty stage is still empty.
+    from skimage import data
+
+    photo = cv.cvtColor(data.astronaut(), cv.COLOR_RGB2BGR)[64:448]
+    photo = cv.resize(photo, (W, H), interpolation=cv.INTER_AREA).astype(np.float32)
+    cover = render_shape(shape="circle", width=W, height=H, size=0.37, center_x=0.557,
+                         center_y=0.383, background=0, foreground=255) / 255.0
+    moved = cv.warpAffine(cover.astype(np.float32), np.float32([[1, 0, -18], [0, 1, 19]]),
+                          (W, H))
+    shade = cv.GaussianBlur(moved, (0, 0), 8.0)
+    scene = (photo * (1 - 0.5 * shade)[:, :, None] * (1 - cover[:, :, None])
+             + np.float32(tone) * cover[:, :, None])
+
+    def camera(x, seed):
+        x = cv.GaussianBlur(x, (0, 0), 0.75) + np.random.default_rng(seed).normal(0, 3.5, x.shape)
+        _, jpeg = cv.imencode(".jpg", np.clip(np.round(x), 0, 255).astype(np.uint8),
+                              [cv.IMWRITE_JPEG_QUALITY, 70])
+        return cv.imdecode(jpeg, cv.IMREAD_COLOR)
+
+    reference = camera(photo, 1)
+    fig = figure_from_reference(camera(scene, 2), reference)
+    truth = cover >= 0.5
+    shadow = (shade > 0.2) & ~truth
+    assert iou(fig.mask, truth) >= 0.9
+    assert (shadow & (fig.mask > 0)).sum() <= 0.025 * truth.sum()
+    assert figure_from_reference(camera(photo, 3), reference).empty
+
+
 def test_a_change_of_exposure_is_absorbed():
     stage, scene, truth = photo_scene("square", size=0.35, rotation_deg=20)
     reference = shoot(stage, 1.0, 1)

@@ -39,6 +39,7 @@ lesser of its contrast against the border and GrabCut's agreement.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -115,6 +116,22 @@ TEXTURE_KEPT = 0.4
 #: is). The bench's shadows (offset 8-24 pixels at 640, blurred 5-12) reached at most
 #: 0.06; the large parts of cards taken for shadow 0.08-0.27 (docs/decisions.md).
 SHADOW_REACH = 0.08
+#: ... and a shadow beside its object is thin and soft-edged: the body of a touching
+#: part deeper than SHADOW_THICK of the longer side (its inscribed radius; the body is
+#: what an opening by a disk of that radius keeps) whose border with the unchanged
+#: ground is at least SHARP_SHARE sharp steps (:func:`sharp_steps`) is the object. A
+#: grey card half over a pale wall or sky without texture passes every shadow test but
+#: this one (docs/decisions.md).
+SHADOW_THICK = 0.025
+SHARP_SHARE = 0.5
+#: A sharp step of the grey log-ratio of frame to relit reference: its gradient at a
+#: Gaussian scale of SHARP_SCALES[0] pixels is over SHARP_NOISE times its median over the
+#: frame and over SHARP_RATIO times the gradient at SHARP_SCALES[1]. An object's edge is
+#: steeper at the fine scale; a penumbra is as steep at both; in a shadow, the ratio keeps
+#: none of the ground's texture.
+SHARP_SCALES = (0.8, 3.0)
+SHARP_NOISE = 6.0
+SHARP_RATIO = 2.0
 #: A camera shift found by phase correlation counts only if the reference shifted by
 #: it explains the frame: the median change score falls under MOVED_EXPLAINS of the
 #: unshifted one. On plain grounds, where nothing can show a shift, the reduced frame's
@@ -327,11 +344,15 @@ def in_grey_levels(score: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return score / np.sqrt(inverse)
 
 
-def cast_shadow(changed: np.ndarray, shadow: np.ndarray) -> np.ndarray:
+def cast_shadow(changed: np.ndarray, shadow: np.ndarray,
+                steps: Callable[[], np.ndarray] | None = None) -> np.ndarray:
     """The pixels of ``shadow`` (shadow-like and changed, :func:`shadow_like`) that are
     a shadow cast by the object: the connected parts (8-connected) that do not touch
     the rest of the change, and those that do and lie within SHADOW_REACH of the
-    frame's longer side of it. A part that reaches farther is the object."""
+    frame's longer side of it. A part that reaches farther is the object. With
+    ``steps`` (called only if a touching part is deeper than SHADOW_THICK; it returns
+    :func:`sharp_steps`), the body of such a part whose border with the unchanged
+    ground is mostly sharp steps is the object too."""
     cv = cv2()
     rest = changed & ~shadow
     if not shadow.any() or not rest.any():
@@ -340,12 +361,50 @@ def cast_shadow(changed: np.ndarray, shadow: np.ndarray) -> np.ndarray:
     distance = cv.distanceTransform((~rest).view(np.uint8), cv.DIST_L2, 3)
     far = np.zeros(n, np.float32)
     np.maximum.at(far, labels.ravel(), distance.ravel())
-    near = cv.dilate(rest.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+    el = np.ones((3, 3), np.uint8)
+    near = cv.dilate(rest.view(np.uint8), el).view(bool)
     touches = np.zeros(n, bool)
     touches[labels[near & shadow]] = True
     keep = ~touches | (far <= SHADOW_REACH * max(changed.shape))
     keep[0] = False
-    return keep[labels]
+    cast = keep[labels]
+    if steps is None:
+        return cast
+    r = max(1, int(round(SHADOW_THICK * max(changed.shape))))
+    inside = cv.distanceTransform(shadow.view(np.uint8), cv.DIST_L2, 3)
+    deep = np.zeros(n, np.float32)
+    np.maximum.at(deep, labels.ravel(), inside.ravel())
+    thick = touches & (deep > r)
+    thick[0] = False
+    if not thick.any():
+        return cast
+    # each part's border with the unchanged ground (the part's label spread one pixel)
+    sharp = cv.dilate(steps().view(np.uint8), el).view(bool)
+    spread = cv.dilate(labels.astype(np.float32), el)
+    border = ~changed & (spread > 0)
+    on = spread[border].astype(np.int64)
+    share = np.bincount(on, weights=sharp[border], minlength=n) / np.maximum(
+        np.bincount(on, minlength=n), 1)
+    thick &= share >= SHARP_SHARE
+    if not thick.any():
+        return cast
+    disk = cv.getStructuringElement(cv.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    body = cv.morphologyEx(thick[labels].view(np.uint8), cv.MORPH_OPEN, disk).view(bool)
+    return cast & ~body
+
+
+def sharp_steps(image: np.ndarray, relit: np.ndarray) -> np.ndarray:
+    """Where the grey log-ratio of ``image`` to ``relit`` steps sharply (SHARP_SCALES,
+    SHARP_NOISE, SHARP_RATIO): a bool (H, W) mask."""
+    cv = cv2()
+    ratio = np.log(_channel_mean(image) + LOG_FLOOR) - np.log(_channel_mean(relit) + LOG_FLOOR)
+
+    def gradient(sigma: float) -> np.ndarray:
+        b = cv.GaussianBlur(ratio, (0, 0), sigma)
+        return np.hypot(cv.Sobel(b, cv.CV_32F, 1, 0), cv.Sobel(b, cv.CV_32F, 0, 1))
+
+    fine, coarse = gradient(SHARP_SCALES[0]), gradient(SHARP_SCALES[1])
+    return (fine > SHARP_NOISE * float(np.median(fine))) & (fine > SHARP_RATIO * coarse)
 
 
 def reduce(image: np.ndarray, work_px: int = WORK_PX) -> np.ndarray:
@@ -586,7 +645,8 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
        log-ratio of at least MIN_CHANGE, or where the frame hides the reference's
        texture (:func:`texture_hidden`); changed pixels that look like the reference
        in shadow are not the object (:func:`shadow_like`) unless they reach too far
-       from the rest (:func:`cast_shadow`; vtexp's additions);
+       from the rest, or are too thick and sharp-edged for a shadow beside its object
+       (:func:`cast_shadow`, :func:`sharp_steps`; vtexp's additions);
     4. close and open, the largest part kept, holes filled (:func:`clean_mask`);
     5. the rim settled where the object covers half of each pixel (:func:`settle_rim`;
        vtexp's addition).
@@ -604,7 +664,8 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
     as the mean of about 10 empty frames. A shadow the object casts on a ground of
     its own colour without texture, and a dark object of the ground's colour on such
     a ground, look alike: both are taken for shadow where they lie beside the rest
-    of the object, and for the object farther away (a long shadow, too).
+    of the object, unless thick and sharp-edged, and for the object farther away (a
+    long shadow, too).
 
     Parameters
     ----------
@@ -664,7 +725,8 @@ def _figure_of_change(image: np.ndarray, reference: np.ndarray, score: np.ndarra
                                                                        texture)
     if also is not None:
         changed |= also
-    changed &= ~cast_shadow(changed, changed & shadow_like(image, relit))
+    changed &= ~cast_shadow(changed, changed & shadow_like(image, relit),
+                            lambda: sharp_steps(image, relit))
     fig = figure_from_score(score, method, raw=changed, redo=redo, threshold=threshold,
                             evidence=grey)
     return settle_rim(fig, image, relit)
