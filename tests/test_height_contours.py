@@ -12,7 +12,7 @@ from vtexp._cv2 import cv2
 from vtexp.encoding.height_contours import (count_lines, height_contours, is_flat,
                                             lattice_shape, line_heights, map_to_array,
                                             normalise_height, reflectance,
-                                            shape_from_shading, sharpen)
+                                            shape_from_shading, sharpen, u8_quantile)
 from vtexp.model import DeviceProfile
 from vtexp.safety import check_schedule
 from vtexp.stimuli import render_shape
@@ -234,3 +234,11 @@ def test_flat_is_a_median_tilt_under_22_degrees_once_the_light_ramp_is_out():
     assert is_flat(np.where(m, 0.9, 0).astype(np.float32), m)   # the albedo estimated
     e, ball = reflectance(render_surface(surface="ball"), size=(80, 60))
     assert not is_flat(e, ball)
+
+
+@given(st.lists(st.integers(0, 255), min_size=1, max_size=600),
+       st.sampled_from([0.0, 0.01, 0.5, 0.99, 1.0]))
+def test_a_quantile_from_the_gray_levels_counts_is_numpys_to_the_last_bit(values, q):
+    """masked_reflectance counts a frame's gray levels instead of sorting them."""
+    v = np.array(values, np.uint8)
+    assert u8_quantile(np.bincount(v, minlength=256), q) == np.percentile(v, 100 * q)

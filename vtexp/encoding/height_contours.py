@@ -222,15 +222,17 @@ def masked_reflectance(gray: np.ndarray, mask: np.ndarray, *,
     full_mask = (np.asarray(mask) != 0).astype(np.uint8)
     out_hw = (size[1], size[0]) if size else g.shape
     empty = (np.zeros(out_hw, np.float32), np.zeros(out_hw, bool))
-    inside = g[full_mask > 0]
-    if inside.size == 0:
+    # Gray levels counted, not sorted: a frame's medians by histogram are exact and
+    # several times faster than numpy's (2.6 ms of a live frame's 27 went to them).
+    inside = np.bincount(g[full_mask > 0], minlength=256)
+    if not inside.any():
         return empty
-    outside = g[full_mask == 0]
-    if outside.size and np.median(outside) > np.median(inside):
+    outside = np.bincount(g.ravel(), minlength=256) - inside
+    if outside.any() and u8_quantile(outside, 0.5) > u8_quantile(inside, 0.5):
         g = cv.bitwise_not(g)                  # dark object on a light background
-        inside = 255 - inside
+        inside = inside[::-1]
     amb = 0.0 if ambient is None else float(ambient)
-    alb = float(np.percentile(inside, 99)) if albedo is None else float(albedo)
+    alb = u8_quantile(inside, 0.99) if albedo is None else float(albedo)
     if alb - amb < 1.0:
         return empty
     # Outside the mask is ``amb``: the edge's working pixels darker where the object
@@ -239,6 +241,19 @@ def masked_reflectance(gray: np.ndarray, mask: np.ndarray, *,
     level = np.float32(amb)
     flat = np.where(full_mask > 0, g.astype(np.float32), level)
     return _working(flat, full_mask, size, amb, alb, empty, soft=True)
+
+
+def u8_quantile(counts: np.ndarray, q: float) -> float:
+    """``np.percentile(values, 100 * q)`` (its linear interpolation, to the last bit) of
+    uint8 ``values`` given as their ``np.bincount`` (at least one value)."""
+    cum = np.cumsum(counts)
+    n = int(cum[-1])
+    at = (n - 1) * q
+    lo = math.floor(at)
+    t = at - lo
+    a = float(np.searchsorted(cum, lo, side="right"))
+    b = float(np.searchsorted(cum, min(lo + 1, n - 1), side="right"))
+    return b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t
 
 
 _ROW = np.array([[1, 0, 1]], np.uint8)
