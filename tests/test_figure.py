@@ -240,9 +240,7 @@ def test_a_grey_card_over_a_pale_wall_is_not_taken_for_its_shadow(tone):
 
     def camera(x, seed):
         x = cv.GaussianBlur(x, (0, 0), 0.75) + np.random.default_rng(seed).normal(0, 3.5, x.shape)
-        _, jpeg = cv.imencode(".jpg", np.clip(np.round(x), 0, 255).astype(np.uint8),
-                              [cv.IMWRITE_JPEG_QUALITY, 70])
-        return cv.imdecode(jpeg, cv.IMREAD_COLOR)
+        return jpeg(np.clip(np.round(x), 0, 255).astype(np.uint8), 70)
 
     reference = camera(photo, 1)
     fig = figure_from_reference(camera(scene, 2), reference)

@@ -368,7 +368,7 @@ def cast_shadow(changed: np.ndarray, shadow: np.ndarray,
     keep = ~touches | (far <= SHADOW_REACH * max(changed.shape))
     keep[0] = False
     cast = keep[labels]
-    if steps is None:
+    if steps is None or not touches.any():
         return cast
     r = max(1, int(round(SHADOW_THICK * max(changed.shape))))
     inside = cv.distanceTransform(shadow.view(np.uint8), cv.DIST_L2, 3)
