@@ -508,6 +508,25 @@ def test_a_camera_that_stops_delivering_is_one_message(tmp_path):
     assert rec.meta["status"] == "failed" and rec.states()[-1][1] == {}
 
 
+@pytest.mark.realtime
+def test_a_source_slow_to_give_its_first_frame_is_waited_for(tmp_path):
+    # A program on standard input that takes 3 s to start (importing its libraries
+    # under a busy machine's load took over 2 s): the stall limit of 2 s is for a
+    # source that stopped, not for one starting up.
+    producer = ("import sys, time\ntime.sleep(3)\nfrom vtexp.stimuli import render_shape\n"
+                "for k in range(10):\n"
+                "    sys.stdout.buffer.write(render_shape(shape='square', width=160, height=120,"
+                " center_x=0.3 + 0.01 * k).tobytes())\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p1 = subprocess.Popen([sys.executable, "-c", producer], stdout=subprocess.PIPE, env=env)
+    r = run_cli("live", "-", "--pipeline", "edge-trace", "--frame-size", "160x120", "--record",
+                str(tmp_path / "rec"), stdin=p1.stdout, timeout=120)
+    p1.stdout.close()
+    p1.wait()
+    assert r.returncode == 0, r.stderr
+    assert load_record(tmp_path / "rec").meta["status"] != "failed"
+
+
 @pytest.mark.process
 def test_ctrl_c_stops_with_everything_off(tmp_path, videos):
     path, _ = videos["rectangle"]

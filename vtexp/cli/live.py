@@ -233,7 +233,8 @@ def register(sub) -> None:
     s.add_argument("--pixel-format", default="gray8", choices=("gray8", "bgr24"),
                    help="pixels of the frames on standard input (default gray8)")
     s.add_argument("--stall-s", type=float, default=2.0,
-                   help="stop with an error when the source gives no frame for this long")
+                   help="stop with an error when the source gives no frame for this long "
+                        "(the first frame may take 10 s at least)")
     s.add_argument("--screenshot", metavar="PNG", help=argparse.SUPPRESS)
     s.set_defaults(func=cmd_live)
 

@@ -22,7 +22,8 @@ order, as often as something happens:
 
 It stops at the end of the source, after ``duration_s``, when ``should_stop`` says
 so (the preview's Escape, Ctrl-C), or on an error — a source that cannot be read,
-stops delivering (nothing for ``stall_s``) or gives a wrong frame; a device fault —
+stops delivering (nothing for ``stall_s``; for the first frame, at least
+FIRST_FRAME_S) or gives a wrong frame; a device fault —
 and in every case every actuator is off before :meth:`LiveRun.run` returns or
 raises.
 
@@ -67,6 +68,10 @@ from .encoder import Encoded, LiveEncoder
 from .program import Program, carried_epoch, change_epoch
 from .sources import Capture, Frame, FrameSource, LatestFrame, SourceEnded
 
+#: The first frame may take this long (seconds) even when ``stall_s`` is shorter: a
+#: camera opening, a program on standard input importing its libraries (under a busy
+#: machine's load a Python producer took over 2 s).
+FIRST_FRAME_S = 10.0
 
 class ClockMap:
     """The device's clock on the host's: offset from the exchange with the shortest round
@@ -211,6 +216,7 @@ class _Loop:
     pending: _Pending | None = None
     deadline_at: float | None = None    # when the device's deadline fell due
     failures: int = 0                   # streams failed in a row
+    seen: bool = False                  # a frame was taken
 
 
 class LiveRun:
@@ -310,12 +316,20 @@ class LiveRun:
             self.stop(f"end of {self.source.label}")
             return True
         if frame is not None:
-            loop.last_frame_at = now
+            loop.last_frame_at, loop.seen = now, True
             loop.pending = self._process(frame, loop.pending)
-        elif now - loop.last_frame_at > self.stall_s:
+        elif now - loop.last_frame_at > self._stall_limit(loop):
+            if not loop.seen:
+                raise InputError(f"{self.source.label} gave no frame in its first "
+                                 f"{self._stall_limit(loop):g} s", key="SOURCE")
             raise InputError(f"{self.source.label} stopped delivering frames (none for "
                              f"{self.stall_s:g} s)", key="SOURCE")
         return False
+
+    def _stall_limit(self, loop: _Loop) -> float:
+        """How long the source may give no frame: ``stall_s``, and at least FIRST_FRAME_S
+        for the first (a camera opening, a program on standard input starting up)."""
+        return self.stall_s if loop.seen else max(self.stall_s, FIRST_FRAME_S)
 
     def _stream(self, loop: _Loop) -> bool:
         """The program's outputs now to the device (or that the host is alive); False if
@@ -352,7 +366,7 @@ class LiveRun:
         deadline or check-in, a stall, the end."""
         dev = self.device
         now = self.clock.now()
-        waits = [loop.end_at - now, self.stall_s - (now - loop.last_frame_at) + 0.001,
+        waits = [loop.end_at - now, self._stall_limit(loop) - (now - loop.last_frame_at) + 0.001,
                  dev.stream_checkin_ms / 2000.0]
         prog = self.program
         if prog is not None:
