@@ -73,6 +73,7 @@ from .sources import Capture, Frame, FrameSource, LatestFrame, SourceEnded
 #: machine's load a Python producer took over 2 s).
 FIRST_FRAME_S = 10.0
 
+
 class ClockMap:
     """The device's clock on the host's: offset from the exchange with the shortest round
     trip among the last ``window`` (the device stamped the change between the host's
@@ -366,7 +367,8 @@ class LiveRun:
         deadline or check-in, a stall, the end."""
         dev = self.device
         now = self.clock.now()
-        waits = [loop.end_at - now, self._stall_limit(loop) - (now - loop.last_frame_at) + 0.001,
+        waits = [loop.end_at - now,
+                 self._stall_limit(loop) - (now - loop.last_frame_at) + 0.001,
                  dev.stream_checkin_ms / 2000.0]
         prog = self.program
         if prog is not None:
