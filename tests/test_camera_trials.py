@@ -88,12 +88,7 @@ def test_a_camera_session_end_to_end_on_the_emulator(tmp_path, clip):
     lx = load_experiment(experiment(tmp_path, clip))
     conds = compile_conditions(lx, VEST)
     assert all(c.camera and c.schedule is None for c in conds)
-    # The live trial encodes frames in this process while the emulator answers from a
-    # thread of it; with the suite's five processes on two cores, a reply once took
-    # 127 ms, past the 120 ms of silence the default 200 ms watchdog allows. The link's
-    # timing is tested elsewhere (test_serial_faults); here a 900 ms watchdog, the
-    # longest vest_6x8 streams with.
-    with open_device("emulator:watchdog_ms=900", VEST) as dev:
+    with open_device("emulator", VEST) as dev:
         res = run(lx, tmp_path, dev)
         assert dev.emulator.all_outputs_off()
     assert res.status == "completed"
