@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -391,18 +392,25 @@ def test_vtexp_live_records_a_run_that_can_be_audited_and_replayed(tmp_path, vid
     assert "already exists" in one_line_error(r)
 
 
+def live_from_program(producer: str, record: Path):
+    """``vtexp live -`` (edge-trace, 160x120 gray frames) fed by the Python program
+    ``producer`` on its standard input, recorded to ``record``: the CLI's result."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p1 = subprocess.Popen([sys.executable, "-c", producer], stdout=subprocess.PIPE, env=env)
+    r = run_cli("live", "-", "--pipeline", "edge-trace", "--frame-size", "160x120", "--record",
+                str(record), stdin=p1.stdout, timeout=120)
+    p1.stdout.close()
+    p1.wait()
+    return r
+
+
 def test_frames_from_another_program_on_standard_input(tmp_path):
     producer = ("import sys\nfrom vtexp.stimuli import render_shape\n"
                 "for k in range(45):\n"
                 "    img = render_shape(shape='square', width=160, height=120, size=0.5,"
                 " center_x=0.3 + 0.01 * k)\n"
                 "    sys.stdout.buffer.write(img.tobytes())\n")
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    p1 = subprocess.Popen([sys.executable, "-c", producer], stdout=subprocess.PIPE, env=env)
-    r = run_cli("live", "-", "--pipeline", "edge-trace", "--frame-size", "160x120", "--record",
-                str(tmp_path / "rec"), stdin=p1.stdout, timeout=120)
-    p1.stdout.close()
-    p1.wait()
+    r = live_from_program(producer, tmp_path / "rec")
     assert r.returncode == 0, r.stderr
     assert "end of standard input" in r.stdout
     rec = load_record(tmp_path / "rec")
@@ -517,12 +525,7 @@ def test_a_source_slow_to_give_its_first_frame_is_waited_for(tmp_path):
                 "for k in range(10):\n"
                 "    sys.stdout.buffer.write(render_shape(shape='square', width=160, height=120,"
                 " center_x=0.3 + 0.01 * k).tobytes())\n")
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    p1 = subprocess.Popen([sys.executable, "-c", producer], stdout=subprocess.PIPE, env=env)
-    r = run_cli("live", "-", "--pipeline", "edge-trace", "--frame-size", "160x120", "--record",
-                str(tmp_path / "rec"), stdin=p1.stdout, timeout=120)
-    p1.stdout.close()
-    p1.wait()
+    r = live_from_program(producer, tmp_path / "rec")
     assert r.returncode == 0, r.stderr
     assert load_record(tmp_path / "rec").meta["status"] != "failed"
 
