@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -239,21 +240,19 @@ def _fit_planes(ratio: np.ndarray, *, valid: np.ndarray | None = None, samples: 
     h, w, c = ratio.shape
     step = max(1, int(np.sqrt(h * w / samples)))
     sub = ratio[::step, ::step]
-    y = np.repeat(np.arange(0, h, step) / h - 0.5, sub.shape[1])
-    x = np.tile(np.arange(0, w, step) / w - 0.5, sub.shape[0])
+    design, yy, xx = _light_design(h, w, step)
     d = sub.reshape(-1, c).T.astype(np.float64)                    # (C, n)
     ok = (np.ones_like(d, bool) if valid is None
           else valid[::step, ::step].reshape(-1, c).T.copy())   # never the caller's array
     ok[ok.sum(axis=1) < MIN_LIGHT_SAMPLES] = True    # too few bright pixels: take them all
-    design = np.stack(_light_terms(x, y), axis=1)                    # (n, 6)
     coef = np.zeros((c, design.shape[1]))
     for k in range(c):
         dk, ak = d[k, ok[k]], design[ok[k]]
-        coef[k, 0] = np.median(dk)
+        coef[k, 0] = median(dk)
         for _ in range(rounds):
             r = dk - ak @ coef[k]
-            dev = np.abs(r - np.median(r))
-            keep = dev <= max(3 * 1.4826 * float(np.median(dev)), 1e-3)
+            dev = np.abs(r - median(r))
+            keep = dev <= max(3 * 1.4826 * float(median(dev)), 1e-3)
             if keep.sum() < design.shape[1]:
                 break
             a = ak[keep]
@@ -261,13 +260,42 @@ def _fit_planes(ratio: np.ndarray, *, valid: np.ndarray | None = None, samples: 
                 coef[k] = np.linalg.solve(a.T @ a, a.T @ dk[keep])
             except np.linalg.LinAlgError:
                 coef[k] = np.linalg.lstsq(a, dk[keep], rcond=None)[0]
-    yy = (np.arange(h, dtype=np.float32) / h - 0.5)[:, None]
-    xx = (np.arange(w, dtype=np.float32) / w - 0.5)[None, :]
     out = np.empty((h, w, c), np.float32)
     for k, (c1, cx, cy, cxx, cxy, cyy) in enumerate(coef.astype(np.float32)):
         # one channel at a time: numpy broadcasts slowly over a last axis of 3
         out[:, :, k] = (c1 + cy * yy + cyy * yy * yy) + (cx + cxy * yy) * xx + cxx * xx * xx
     return out
+
+
+@lru_cache(maxsize=8)
+def _light_design(h: int, w: int, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For :func:`_fit_planes` on (h, w) sampled every ``step`` pixels: the design matrix
+    of :func:`_light_terms` at the samples (n, 6), and the rows' and columns'
+    coordinates (y as (h, 1), x as (1, w), float32). Read-only: a live camera's every
+    frame shares them."""
+    y = np.repeat(np.arange(0, h, step) / h - 0.5, len(range(0, w, step)))
+    x = np.tile(np.arange(0, w, step) / w - 0.5, len(range(0, h, step)))
+    design = np.stack(_light_terms(x, y), axis=1)
+    yy = (np.arange(h, dtype=np.float32) / h - 0.5)[:, None]
+    xx = (np.arange(w, dtype=np.float32) / w - 0.5)[None, :]
+    for a in (design, yy, xx):
+        a.flags.writeable = False
+    return design, yy, xx
+
+
+def median(values: np.ndarray) -> np.floating:
+    """``np.median`` of ``values`` (all of them, no NaN), to the last bit, by one
+    partition: numpy's own costs 5-10 times as much on the 1,000-10,000 values a live
+    frame's figure takes medians of (:class:`BackgroundModel`, 30 times a second)."""
+    a = np.asarray(values).ravel()
+    n = a.size
+    if n == 0:
+        return np.median(a)
+    k = n // 2
+    if n % 2:
+        return np.partition(a, k)[k]
+    p = np.partition(a, (k - 1, k))
+    return (p[k - 1] + p[k]) / 2
 
 
 def _light_terms(x: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
@@ -322,17 +350,24 @@ def camera_shift(image: np.ndarray, reference: np.ndarray) -> tuple[float, float
     cv = cv2()
     a = _channel_mean(np.log(image + LOG_FLOOR)).astype(np.float32)
     b = _channel_mean(np.log(reference + LOG_FLOOR)).astype(np.float32)
-    window = cv.createHanningWindow((a.shape[1], a.shape[0]), cv.CV_32F)
-    (dx, dy), peak = cv.phaseCorrelate(b, a, window)
+    (dx, dy), peak = cv.phaseCorrelate(b, a, _hanning(a.shape[1], a.shape[0]))
     return float(dx), float(dy), float(peak)
+
+
+@lru_cache(maxsize=4)
+def _hanning(w: int, h: int) -> np.ndarray:
+    """The Hanning window of :func:`camera_shift` (read-only, shared by every frame)."""
+    window = cv2().createHanningWindow((w, h), cv2().CV_32F)
+    window.flags.writeable = False
+    return window
 
 
 def change_threshold(score: np.ndarray, floor: float = MIN_CHANGE) -> float:
     """Median + 8 x 1.4826 x MAD of the score (note §1.0, step 3), at least ``floor``.
     On a larger score, of every other pixel of every other row."""
     sub = score[::2, ::2] if score.size > 40000 else score
-    med = float(np.median(sub))
-    mad = float(np.median(np.abs(sub - med)))
+    med = float(median(sub))
+    mad = float(median(np.abs(sub - med)))
     return max(med + MAD_FACTOR * 1.4826 * mad, floor)
 
 
@@ -415,7 +450,7 @@ def sharp_steps(image: np.ndarray, relit: np.ndarray) -> np.ndarray:
         return np.hypot(cv.Sobel(b, cv.CV_32F, 1, 0), cv.Sobel(b, cv.CV_32F, 0, 1))
 
     fine, coarse = gradient(SHARP_SCALES[0]), gradient(SHARP_SCALES[1])
-    return (fine > SHARP_NOISE * float(np.median(fine))) & (fine > SHARP_RATIO * coarse)
+    return (fine > SHARP_NOISE * float(median(fine))) & (fine > SHARP_RATIO * coarse)
 
 
 def reduce(image: np.ndarray, work_px: int = WORK_PX) -> np.ndarray:
@@ -602,10 +637,10 @@ def _confidence(score: np.ndarray, threshold: float, raw: np.ndarray,
     heuristic, not a probability.
     """
     inside = mask > 0
-    med = float(np.median(score[::2, ::2]))
+    med = float(median(score[::2, ::2]))
     margin = max(threshold - med, 1e-6)
     terms = {
-        "contrast": float(np.clip((np.median(score[inside]) - med) / margin - 0.5, 0, 1)),
+        "contrast": float(np.clip((median(score[inside]) - med) / margin - 0.5, 0, 1)),
         "density": float(np.clip((raw[inside].mean() - 0.25) / 0.4, 0, 1)),
         "held": float(np.clip(2 * np.count_nonzero(raw & inside)
                               / max(np.count_nonzero(raw), 1), 0, 1)),
