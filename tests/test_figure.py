@@ -268,15 +268,17 @@ def test_a_grey_card_over_a_pale_wall_is_not_taken_for_its_shadow(tone):
     assert figure_from_reference(empty, reference).empty
 
 
-@pytest.mark.parametrize("tone", [200, 210, 220])
+@pytest.mark.parametrize("tone", [200, 210, 215, 220])
 def test_a_card_whose_change_on_a_pale_wall_is_faint_is_found_by_its_colour(tone):
     # Lighter cards on the same wall: over it they change the frame by less than the
-    # threshold the photograph's texture sets, or pass for their own shadow; only the
-    # half over the astronaut was found (IoU 0.55-0.60). Where it was found the card
-    # says what colour it is, and GrabCut finds the rest of it by that colour.
+    # threshold the photograph's texture sets (6-14 grey levels, median), or pass for
+    # their own shadow; only the half over the astronaut was found (IoU 0.55-0.60).
+    # Where it was found the card says what colour it is, and GrabCut finds the rest of
+    # it by that colour (IoU 0.90-0.98), over all that changed by a tenth of the
+    # threshold: from a third, 0.75-0.81 where the change is 6-8 grey levels.
     frame, reference, truth, shadow, _ = pale_wall(tone)
     fig = figure_from_reference(frame, reference)
-    assert iou(fig.mask, truth) >= 0.7
+    assert iou(fig.mask, truth) >= 0.85
     assert (shadow & (fig.mask > 0)).sum() <= 0.025 * truth.sum()
 
 
