@@ -558,15 +558,24 @@ def _windowed_ncc(x: np.ndarray, y: np.ndarray, where: np.ndarray, k: int,
     """(normalised cross-correlation of ``x`` and ``y``, variance of ``y``) over the
     pixels of ``where`` in the k x k window around each pixel, each (H, W) float32;
     variances under ``floor`` count as ``floor``."""
-    cv = cv2()
     w = where.astype(np.float32)
-    sw = np.maximum(cv.blur(w, (k, k)), np.float32(1e-6))
-    wx, wy = w * x, w * y
-    mx, my = cv.blur(wx, (k, k)) / sw, cv.blur(wy, (k, k)) / sw
-    vx = cv.blur(wx * x, (k, k)) / sw - mx * mx
-    vy = cv.blur(wy * y, (k, k)) / sw - my * my
-    cov = cv.blur(wx * y, (k, k)) / sw - mx * my
+    sw, mx, vx = _window_moments(x, w, k)
+    _, my, vy = _window_moments(y, w, k)
+    cov = cv2().blur(w * x * y, (k, k)) / np.maximum(sw, np.float32(1e-6)) - mx * my
     return cov / np.sqrt(np.maximum(vx, floor) * np.maximum(vy, floor)), vy
+
+
+def _window_moments(x: np.ndarray, w: np.ndarray, k: int
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(share of weight, mean, variance) of ``x`` weighted by ``w`` (float32 0/1) over
+    the k x k window around each pixel, each (H, W) float32 (mean and variance 0 where
+    the window has no weight)."""
+    cv = cv2()
+    sw = cv.blur(w, (k, k))
+    den = np.maximum(sw, np.float32(1e-6))
+    wx = w * x
+    mean = cv.blur(wx, (k, k)) / den
+    return sw, mean, cv.blur(wx * x, (k, k)) / den - mean * mean
 
 
 def grey_texture(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -927,9 +936,7 @@ def settle_rim(figure: Figure, image: np.ndarray, relit: np.ndarray) -> Figure:
     depth = max(1, int(round(RIM_SHARE * max(d.shape))))
     k = _window(d.shape)
     inside = cv.erode(figure.mask, np.ones((3, 3), np.uint8), iterations=depth)
-    weight = cv.blur(inside.astype(np.float32), (k, k))
-    near = cv.blur(d * inside, (k, k)) / np.maximum(weight, 1e-6)
-    spread = cv.blur(d * d * inside, (k, k)) / np.maximum(weight, 1e-6) - near * near
+    weight, near, spread = _window_moments(d, inside.astype(np.float32), k)
     even = spread < (RIM_EVEN * near) ** 2
     drop = (figure.mask > 0) & (inside == 0) & (weight > 0) & even & (d < 0.5 * near)
     if not drop.any():
