@@ -155,8 +155,9 @@ RIM_SHARE = 1 / 160
 #: of a pixel it covers.
 RIM_EVEN = 0.5
 #: ... and a part that dropping the rim leaves apart, under RIM_SPECK of the largest
-#: part, is dropped: a speck of the ground that a thin neck joined (on seed 20000 it
-#: stretched a circle's box by 11 pixels at 640; docs/decisions.md).
+#: part, is dropped (:func:`without_specks`, with a reference): a speck of the ground
+#: that a thin neck joined (on seed 20000 it stretched a circle's box by 11 pixels at
+#: 640; docs/decisions.md).
 RIM_SPECK = 0.005
 #: Where its change is faint, the object is found by its colour (:func:`grow_by_colour`,
 #: GrabCut): within GROW_BAND of the longer side of the figure, over pixels that changed
@@ -819,8 +820,7 @@ def figure_from_reference(image: np.ndarray, reference: np.ndarray, *,
     if moved:
         return Figure.nothing(full.shape, moved, "reference")
     score, gain = _light_residual(img, ref)
-    return enlarge(_figure_of_change(img, ref, score, gain, "reference", grow=True,
-                                     penumbra=True), full.shape)
+    return enlarge(_figure_of_change(img, ref, score, gain, "reference"), full.shape)
 
 
 def _figure_of_change(image: np.ndarray, reference: np.ndarray, score: np.ndarray,
@@ -828,15 +828,17 @@ def _figure_of_change(image: np.ndarray, reference: np.ndarray, score: np.ndarra
                       also: np.ndarray | None = None,
                       redo: str = "capture the empty stage again",
                       texture: tuple[np.ndarray, np.ndarray] | None = None,
-                      grow: bool = False, penumbra: bool = False) -> Figure:
+                      live: bool = False) -> Figure:
     """Steps 3-6 of :func:`figure_from_reference` on reduced frames, shared with
     :class:`BackgroundModel`: changed where the score in grey levels passes its
     threshold and the log-ratio ``least`` (a number or per pixel), where the frame
     hides the reference's texture (:func:`texture_hidden`), or where ``also`` says so;
-    shadows beside the object left out (with ``penumbra``, then the soft edges of
-    shadows too, :func:`penumbra_like`); cleaned; the rim settled; with ``grow``, the
-    faint parts found by colour (:func:`grow_by_colour`). ``texture``: the
-    reference's :func:`grey_texture`, if already known."""
+    shadows beside the object left out, then the soft edges of shadows
+    (:func:`penumbra_like`); cleaned; the rim settled and the specks it leaves apart
+    dropped (:func:`without_specks`); the faint parts found by colour
+    (:func:`grow_by_colour`). ``live``: a live camera's frame, which leaves out the soft
+    edges, the specks and the growing (they cost about 5-10 ms, 1 ms and 100 ms a
+    frame). ``texture``: the reference's :func:`grey_texture`, if already known."""
     grey = in_grey_levels(score, reference)
     threshold = change_threshold(grey, floor=0.0)
     relit = reference * gain
@@ -851,7 +853,7 @@ def _figure_of_change(image: np.ndarray, reference: np.ndarray, score: np.ndarra
         return sharp_steps(image, relit)
 
     changed &= ~cast_shadow(changed, changed & (kept | flat), steps)
-    if penumbra:
+    if not live:
         # a pass of its own: joined to the shadows above, a shadow's soft edge made
         # parts that reach past SHADOW_REACH, which are then the object
         soft = changed & penumbra_like(image, relit) & ~(kept | flat)
@@ -859,9 +861,24 @@ def _figure_of_change(image: np.ndarray, reference: np.ndarray, score: np.ndarra
     fig = figure_from_score(score, method, raw=changed, redo=redo, threshold=threshold,
                             evidence=grey)
     fig = settle_rim(fig, image, relit)
-    if not grow:
+    if live:
         return fig
-    return grow_by_colour(fig, image, (grey > GROW_FAINT * threshold) & ~kept)
+    return grow_by_colour(without_specks(fig), image,
+                          (grey > GROW_FAINT * threshold) & ~kept)
+
+
+def without_specks(figure: Figure) -> Figure:
+    """``figure`` without its parts (8-connected) under RIM_SPECK of the largest: what
+    :func:`settle_rim` left apart when it cut the thin necks that joined them."""
+    cv = cv2()
+    n, labels = cv.connectedComponents(figure.mask, connectivity=8)
+    if n <= 2:
+        return figure
+    areas = np.bincount(labels.ravel(), minlength=n)
+    keep = areas >= RIM_SPECK * areas[1:].max()
+    keep[0] = False
+    return Figure(keep[labels].view(np.uint8), figure.confidence, figure.method,
+                  figure.reason)
 
 
 def grow_by_colour(figure: Figure, image: np.ndarray, faint: np.ndarray) -> Figure:
@@ -929,8 +946,7 @@ def settle_rim(figure: Figure, image: np.ndarray, relit: np.ndarray) -> Figure:
     the channels). Pixels of the figure's outer rim (RIM_SHARE of the longer side deep,
     at least 1 pixel) that differ by less than half the mean of the inside within a
     window of about 1/50 of the longer side, where that inside is even (RIM_EVEN), are
-    dropped, holes filled, and the parts that left apart under RIM_SPECK of the
-    largest. The dark rim of a shadow beside the object goes too.
+    dropped, holes filled. The dark rim of a shadow beside the object goes too.
     Measured on the dev seeds (docs/decisions.md): figure IoU on plain grounds 0.94 /
     0.95 -> 0.96 / 0.98, photographs 0.88 / 0.88 -> 0.89 / 0.90."""
     if figure.empty:
@@ -948,13 +964,7 @@ def settle_rim(figure: Figure, image: np.ndarray, relit: np.ndarray) -> Figure:
         return figure
     mask = figure.mask.copy()
     mask[drop] = 0
-    mask = fill_holes(mask)
-    n, labels, stats, _ = cv.connectedComponentsWithStats(mask, connectivity=8)
-    if n > 2:                           # parts left apart: the specks go
-        areas = stats[1:, cv.CC_STAT_AREA]
-        mask = np.concatenate([[False], areas >= RIM_SPECK * areas.max()])[labels]
-        mask = mask.astype(np.uint8)
-    return Figure(mask, figure.confidence, figure.method, figure.reason)
+    return Figure(fill_holes(mask), figure.confidence, figure.method, figure.reason)
 
 
 def _moved(image: np.ndarray, reference: np.ndarray, redo: str, scale: float = 1.0
@@ -1411,7 +1421,7 @@ class BackgroundModel:
             self._texture = grey_texture(bg)
         fig = _figure_of_change(img, bg, score, gain, "model", redo=redo, also=fg,
                                 least=np.maximum(MIN_CHANGE, self._steady),
-                                texture=self._texture)
+                                texture=self._texture, live=True)
         return enlarge(fig, full.shape)
 
     def _learn(self, img: np.ndarray) -> None:
