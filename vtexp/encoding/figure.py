@@ -837,7 +837,7 @@ def _figure_of_change(image: np.ndarray, reference: np.ndarray, score: np.ndarra
     (:func:`penumbra_like`); cleaned; the rim settled and the specks it leaves apart
     dropped (:func:`without_specks`); the faint parts found by colour
     (:func:`grow_by_colour`). ``live``: a live camera's frame, which leaves out the soft
-    edges, the specks and the growing (they cost about 5-10 ms, 1 ms and 100 ms a
+    edges, the specks and the growing (they cost about 5-10 ms, 0.7 ms and 100 ms a
     frame). ``texture``: the reference's :func:`grey_texture`, if already known."""
     grey = in_grey_levels(score, reference)
     threshold = change_threshold(grey, floor=0.0)
