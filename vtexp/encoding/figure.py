@@ -565,18 +565,18 @@ def _windowed_ncc(x: np.ndarray, y: np.ndarray, where: np.ndarray, k: int,
     variances under ``floor`` count as ``floor``."""
     w = where.astype(np.float32)
     sw, mx, vx = _window_moments(x, w, k)
-    _, my, vy = _window_moments(y, w, k)
+    _, my, vy = _window_moments(y, w, k, sw)
     cov = cv2().blur(w * x * y, (k, k)) / np.maximum(sw, np.float32(1e-6)) - mx * my
     return cov / np.sqrt(np.maximum(vx, floor) * np.maximum(vy, floor)), vy
 
 
-def _window_moments(x: np.ndarray, w: np.ndarray, k: int
+def _window_moments(x: np.ndarray, w: np.ndarray, k: int, sw: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(share of weight, mean, variance) of ``x`` weighted by ``w`` (float32 0/1) over
     the k x k window around each pixel, each (H, W) float32 (mean and variance 0 where
-    the window has no weight)."""
+    the window has no weight). ``sw``: the share of weight, if already known."""
     cv = cv2()
-    sw = cv.blur(w, (k, k))
+    sw = cv.blur(w, (k, k)) if sw is None else sw
     den = np.maximum(sw, np.float32(1e-6))
     wx = w * x
     mean = cv.blur(wx, (k, k)) / den
