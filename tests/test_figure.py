@@ -24,7 +24,7 @@ from vtexp.encoding import PIPELINES
 from vtexp.encoding.figure import (MIN_CONFIDENCE, SHADOW_REACH, BackgroundModel, Figure,
                                    cast_shadow, figure_from_reference, figure_from_still,
                                    fit_light, grow_by_colour, median, settle_rim,
-                                   without_specks)
+                                   shadow_rim, without_specks)
 from vtexp.encoding.height_contours import reflectance
 from vtexp.encoding.snake import SnakeTracker
 from vtexp.errors import InputError
@@ -340,6 +340,60 @@ def test_the_soft_edge_of_a_shadow_on_grass_is_not_joined_to_the_card(dx, dy):
     assert iou(fig.mask, truth) >= 0.93
     assert (shadow & (fig.mask > 0)).sum() <= 0.05 * truth.sum()
     assert figure_from_reference(empty, reference).empty
+
+
+def on_fur(dx: float, dy: float, seed: int = 2):
+    """A white card (225) on the fur of scikit-image's chelsea, its shadow moved by
+    (dx, dy) and blurred by 6 pixels, through a camera (blur, noise, JPEG 70):
+    ``(frame, reference, truth, shadow, empty frame)``."""
+    from skimage import data
+
+    photo = cv.cvtColor(data.chelsea(), cv.COLOR_RGB2BGR)
+    photo = cv.resize(photo, (W, H), interpolation=cv.INTER_AREA).astype(np.float32)
+    cover = render_shape(shape="circle", width=W, height=H, size=0.45, center_x=0.5,
+                         center_y=0.6, background=0, foreground=255) / 255.0
+    moved = cv.warpAffine(cover.astype(np.float32), np.float32([[1, 0, dx], [0, 1, dy]]),
+                          (W, H))
+    shade = cv.GaussianBlur(moved, (0, 0), 6.0)
+    scene = (photo * (1 - 0.45 * shade)[:, :, None] * (1 - cover[:, :, None])
+             + np.float32(225) * cover[:, :, None])
+
+    def camera(x, seed):
+        x = cv.GaussianBlur(x, (0, 0), 0.75) + np.random.default_rng(seed).normal(0, 3.0, x.shape)
+        return jpeg(np.clip(np.round(x), 0, 255).astype(np.uint8), 70)
+
+    truth = cover >= 0.5
+    return camera(scene, seed), camera(photo, 1), truth, (shade > 0.2) & ~truth, camera(photo, 3)
+
+
+@pytest.mark.parametrize("dx,dy", [(-12, -14), (14, -12), (0, -16), (6, 16)])
+def test_the_shadow_of_the_grounds_colour_beside_a_card_of_another_is_left_out(dx, dy):
+    # Beside the card the shadow's soft edge on fur fails the texture tests, and bumps of
+    # it were joined to the card (1.1-1.7 % of its area, its box 10-14 pixels too tall or
+    # wide). They are of the fur's colour in shadow; the white card is not: 0.4-0.7 %.
+    frame, reference, truth, shadow, empty = on_fur(dx, dy)
+    fig = figure_from_reference(frame, reference)
+    assert iou(fig.mask, truth) >= 0.98
+    assert (shadow & (fig.mask > 0)).sum() <= 0.01 * truth.sum()
+    assert figure_from_reference(empty, reference).empty
+
+
+def test_a_gray_frame_has_no_colour_to_tell_a_shadow_by():
+    # A card and, along its right side, 2 pixels darker than the ground and of its grey:
+    # a shadow, or the card's own dark edge. In colour, beside a blue card, the shadow.
+    relit = np.full((60, 80, 1), 100.0, np.float32)
+    image = relit.copy()
+    image[20:40, 20:40] = 200.0
+    image[20:40, 40:42] = 60.0
+    mask = np.zeros((60, 80), np.uint8)
+    mask[20:40, 20:42] = 1
+    fig = Figure(mask, 1.0, "reference")
+    assert shadow_rim(fig, image, relit) is fig
+    colour = np.repeat(image, 3, axis=2)
+    colour[20:40, 20:40] = (250.0, 200.0, 90.0)
+    rim = shadow_rim(fig, colour, np.repeat(relit, 3, axis=2)).mask
+    # (the column next to the card is, in its 3 x 3 mean, not of the ground's colour)
+    assert not rim[22:38, 41].any() and rim[20:40, 20:41].all()
 
 
 def test_the_cut_is_the_same_whatever_drew_on_opencvs_random_generator_before():
