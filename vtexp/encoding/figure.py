@@ -888,7 +888,7 @@ def shadow_rim(figure: Figure, image: np.ndarray, relit: np.ndarray) -> Figure:
     """``figure`` without the pixels of its outer band (SHADOW_THICK of the longer side
     deep) that are of the ground's colour in shadow (:func:`_shadow_colour`) and whose
     chromaticity (3x3 means) is at least RIM_CHROMA from the mean of the object's inside
-    (the figure eroded by the band) within a window of twice the band around them.
+    (the figure eroded by the band) within twice the band's depth around them.
 
     The soft edge of a shadow on fur or among petals fails the texture tests of
     :func:`shadow_tests` and :func:`penumbra_like` beside the object, where the light
@@ -903,7 +903,7 @@ def shadow_rim(figure: Figure, image: np.ndarray, relit: np.ndarray) -> Figure:
     cv = cv2()
     depth = max(1, int(round(SHADOW_THICK * max(image.shape[:2]))))
     k = 4 * depth + 1
-    # Around the figure only, a window beyond it (the same values, a third of the time).
+    # Around the figure only, a window beyond it: the same values in half the time.
     ys, xs = np.nonzero(figure.mask.any(axis=1))[0], np.nonzero(figure.mask.any(axis=0))[0]
     near = np.s_[max(ys[0] - k, 0):ys[-1] + k + 1, max(xs[0] - k, 0):xs[-1] + k + 1]
     m, image, relit = figure.mask[near], image[near], relit[near]
