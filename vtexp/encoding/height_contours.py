@@ -223,11 +223,12 @@ def masked_reflectance(gray: np.ndarray, mask: np.ndarray, *,
     out_hw = (size[1], size[0]) if size else g.shape
     empty = (np.zeros(out_hw, np.float32), np.zeros(out_hw, bool))
     # Gray levels counted, not sorted: a frame's medians by histogram are exact and
-    # several times faster than numpy's (2.6 ms of a live frame's 27 went to them).
-    inside = np.bincount(g[full_mask > 0], minlength=256)
+    # several times faster than numpy's (2.6 ms of a live frame's 27 went to them);
+    # OpenCV counts under the mask in half the time numpy's bincount takes to select.
+    inside = _histogram(g, full_mask)
     if not inside.any():
         return empty
-    outside = np.bincount(g.ravel(), minlength=256) - inside
+    outside = _histogram(g) - inside
     if outside.any() and u8_quantile(outside, 0.5) > u8_quantile(inside, 0.5):
         g = cv.bitwise_not(g)                  # dark object on a light background
         inside = inside[::-1]
@@ -238,9 +239,16 @@ def masked_reflectance(gray: np.ndarray, mask: np.ndarray, *,
     # Outside the mask is ``amb``: the edge's working pixels darker where the object
     # covers them in part (at the object's own mean the lowest line fell inside the
     # outline).
-    level = np.float32(amb)
-    flat = np.where(full_mask > 0, g.astype(np.float32), level)
+    if amb == 0.0:
+        flat = cv.multiply(g, full_mask).astype(np.float32)
+    else:
+        flat = np.where(full_mask > 0, g.astype(np.float32), np.float32(amb))
     return _working(flat, full_mask, size, amb, alb, empty, soft=True)
+
+
+def _histogram(g: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """Counts (int64, 256) of the uint8 ``g``'s levels, where ``mask`` (uint8) is set."""
+    return cv2().calcHist([g], [0], mask, [256], [0, 256]).ravel().astype(np.int64)
 
 
 def u8_quantile(counts: np.ndarray, q: float) -> float:
