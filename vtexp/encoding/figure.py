@@ -424,8 +424,9 @@ def cast_shadow(changed: np.ndarray, shadow: np.ndarray,
         return shadow
     n, labels = cv.connectedComponents(shadow.astype(np.uint8), connectivity=8)
     distance = cv.distanceTransform((~rest).view(np.uint8), cv.DIST_L2, 3)
+    part = labels[shadow]                   # each part's maximum over its own pixels only
     far = np.zeros(n, np.float32)
-    np.maximum.at(far, labels.ravel(), distance.ravel())
+    np.maximum.at(far, part, distance[shadow])
     el = np.ones((3, 3), np.uint8)
     near = cv.dilate(rest.view(np.uint8), el).view(bool)
     touches = np.zeros(n, bool)
@@ -438,7 +439,7 @@ def cast_shadow(changed: np.ndarray, shadow: np.ndarray,
     r = max(1, int(round(SHADOW_THICK * max(changed.shape))))
     inside = cv.distanceTransform(shadow.view(np.uint8), cv.DIST_L2, 3)
     deep = np.zeros(n, np.float32)
-    np.maximum.at(deep, labels.ravel(), inside.ravel())
+    np.maximum.at(deep, part, inside[shadow])
     thick = touches & (deep > r)
     thick[0] = False
     if not thick.any():
