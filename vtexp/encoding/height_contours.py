@@ -247,7 +247,10 @@ def masked_reflectance(gray: np.ndarray, mask: np.ndarray, *,
 
 
 def _histogram(g: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """Counts (int64, 256) of the uint8 ``g``'s levels, where ``mask`` (uint8) is set."""
+    """Counts (int64, 256) of the uint8 ``g``'s levels, where ``mask`` (uint8) is set.
+    OpenCV returns float32 counts, exact up to 2**24: larger images are counted by numpy."""
+    if g.size >= 1 << 24:
+        return np.bincount((g if mask is None else g[mask > 0]).ravel(), minlength=256)
     return cv2().calcHist([g], [0], mask, [256], [0, 256]).ravel().astype(np.int64)
 
 
