@@ -232,28 +232,42 @@ def test_a_card_over_a_texture_of_its_own_grey_is_found_by_the_texture_it_hides(
     assert figure_from_reference(shoot(lens[1], 1.0, 3), reference).empty
 
 
-def pale_wall(tone: float, seed: int = 2):
-    """A light grey circle (``tone``) with a soft shadow, on scikit-image's astronaut,
-    half over the pale wall behind her, through a camera (blur, noise, JPEG 70):
-    ``(frame, reference, truth, shadow, empty frame)``."""
-    from skimage import data
-
-    photo = cv.cvtColor(data.astronaut(), cv.COLOR_RGB2BGR)[64:448]
+def card_with_shadow(photo: np.ndarray, *, tone: float, size: float, centre: tuple,
+                     offset: tuple, blur: float, dark: float, lens: float, noise: float,
+                     seed: int, light: np.ndarray | None = None):
+    """A grey card (``tone``, a circle of ``size`` at ``centre``) on ``photo`` (BGR,
+    resized to W x H), its shadow moved by ``offset``, blurred by ``blur`` pixels and
+    darkening by ``dark``, through a camera (``light`` across, blur ``lens``, noise,
+    JPEG 70): ``(frame, reference, truth, shadow, empty frame)``."""
     photo = cv.resize(photo, (W, H), interpolation=cv.INTER_AREA).astype(np.float32)
-    cover = render_shape(shape="circle", width=W, height=H, size=0.37, center_x=0.557,
-                         center_y=0.383, background=0, foreground=255) / 255.0
-    moved = cv.warpAffine(cover.astype(np.float32), np.float32([[1, 0, -18], [0, 1, 19]]),
+    cover = render_shape(shape="circle", width=W, height=H, size=size, center_x=centre[0],
+                         center_y=centre[1], background=0, foreground=255) / 255.0
+    dx, dy = offset
+    moved = cv.warpAffine(cover.astype(np.float32), np.float32([[1, 0, dx], [0, 1, dy]]),
                           (W, H))
-    shade = cv.GaussianBlur(moved, (0, 0), 8.0)
-    scene = (photo * (1 - 0.5 * shade)[:, :, None] * (1 - cover[:, :, None])
+    shade = cv.GaussianBlur(moved, (0, 0), blur)
+    scene = (photo * (1 - dark * shade)[:, :, None] * (1 - cover[:, :, None])
              + np.float32(tone) * cover[:, :, None])
 
     def camera(x, seed):
-        x = cv.GaussianBlur(x, (0, 0), 0.75) + np.random.default_rng(seed).normal(0, 3.5, x.shape)
+        if light is not None:
+            x = x * light
+        x = cv.GaussianBlur(x, (0, 0), lens) + np.random.default_rng(seed).normal(
+            0, noise, x.shape)
         return jpeg(np.clip(np.round(x), 0, 255).astype(np.uint8), 70)
 
     truth = cover >= 0.5
     return camera(scene, seed), camera(photo, 1), truth, (shade > 0.2) & ~truth, camera(photo, 3)
+
+
+def pale_wall(tone: float, seed: int = 2):
+    """A light grey circle (``tone``) with a soft shadow, on scikit-image's astronaut,
+    half over the pale wall behind her (:func:`card_with_shadow`)."""
+    from skimage import data
+
+    return card_with_shadow(cv.cvtColor(data.astronaut(), cv.COLOR_RGB2BGR)[64:448],
+                            tone=tone, size=0.37, centre=(0.557, 0.383), offset=(-18, 19),
+                            blur=8.0, dark=0.5, lens=0.75, noise=3.5, seed=seed)
 
 
 @pytest.mark.parametrize("tone", [180, 190])
@@ -305,28 +319,14 @@ def test_the_specks_that_settling_the_rim_leaves_apart_are_dropped():
 
 def on_grass(dx: float, dy: float, seed: int = 2):
     """A grey card (190) on the grass of scikit-image's cameraman, its shadow moved by
-    (dx, dy) and blurred by 7 pixels, light from 0.85 to 1.15 across, through a camera
-    (blur, noise, JPEG 70): ``(frame, reference, truth, shadow, empty frame)``."""
+    (dx, dy) and blurred by 7 pixels, light from 0.85 to 1.15 across
+    (:func:`card_with_shadow`)."""
     from skimage import data
 
-    photo = cv.cvtColor(data.camera(), cv.COLOR_GRAY2BGR)
-    photo = cv.resize(photo, (W, H), interpolation=cv.INTER_AREA).astype(np.float32)
-    cover = render_shape(shape="circle", width=W, height=H, size=0.4, center_x=0.7,
-                         center_y=0.75, background=0, foreground=255) / 255.0
-    moved = cv.warpAffine(cover.astype(np.float32), np.float32([[1, 0, dx], [0, 1, dy]]),
-                          (W, H))
-    shade = cv.GaussianBlur(moved, (0, 0), 7.0)
     light = (0.85 + 0.3 * np.arange(W, dtype=np.float32) / W)[None, :, None]
-    scene = (photo * (1 - 0.425 * shade)[:, :, None] * (1 - cover[:, :, None])
-             + np.float32(190) * cover[:, :, None])
-
-    def camera(x, seed):
-        x = cv.GaussianBlur(x * light, (0, 0), 1.0) + np.random.default_rng(seed).normal(
-            0, 3.0, x.shape)
-        return jpeg(np.clip(np.round(x), 0, 255).astype(np.uint8), 70)
-
-    truth = cover >= 0.5
-    return camera(scene, seed), camera(photo, 1), truth, (shade > 0.2) & ~truth, camera(photo, 3)
+    return card_with_shadow(cv.cvtColor(data.camera(), cv.COLOR_GRAY2BGR), tone=190,
+                            size=0.4, centre=(0.7, 0.75), offset=(dx, dy), blur=7.0,
+                            dark=0.425, lens=1.0, noise=3.0, seed=seed, light=light)
 
 
 @pytest.mark.parametrize("dx,dy", [(23, -15), (18, 18), (-15, 22), (24, 8)])
@@ -344,26 +344,12 @@ def test_the_soft_edge_of_a_shadow_on_grass_is_not_joined_to_the_card(dx, dy):
 
 def on_fur(dx: float, dy: float, seed: int = 2):
     """A white card (225) on the fur of scikit-image's chelsea, its shadow moved by
-    (dx, dy) and blurred by 6 pixels, through a camera (blur, noise, JPEG 70):
-    ``(frame, reference, truth, shadow, empty frame)``."""
+    (dx, dy) and blurred by 6 pixels (:func:`card_with_shadow`)."""
     from skimage import data
 
-    photo = cv.cvtColor(data.chelsea(), cv.COLOR_RGB2BGR)
-    photo = cv.resize(photo, (W, H), interpolation=cv.INTER_AREA).astype(np.float32)
-    cover = render_shape(shape="circle", width=W, height=H, size=0.45, center_x=0.5,
-                         center_y=0.6, background=0, foreground=255) / 255.0
-    moved = cv.warpAffine(cover.astype(np.float32), np.float32([[1, 0, dx], [0, 1, dy]]),
-                          (W, H))
-    shade = cv.GaussianBlur(moved, (0, 0), 6.0)
-    scene = (photo * (1 - 0.45 * shade)[:, :, None] * (1 - cover[:, :, None])
-             + np.float32(225) * cover[:, :, None])
-
-    def camera(x, seed):
-        x = cv.GaussianBlur(x, (0, 0), 0.75) + np.random.default_rng(seed).normal(0, 3.0, x.shape)
-        return jpeg(np.clip(np.round(x), 0, 255).astype(np.uint8), 70)
-
-    truth = cover >= 0.5
-    return camera(scene, seed), camera(photo, 1), truth, (shade > 0.2) & ~truth, camera(photo, 3)
+    return card_with_shadow(cv.cvtColor(data.chelsea(), cv.COLOR_RGB2BGR), tone=225,
+                            size=0.45, centre=(0.5, 0.6), offset=(dx, dy), blur=6.0,
+                            dark=0.45, lens=0.75, noise=3.0, seed=seed)
 
 
 @pytest.mark.parametrize("dx,dy", [(-12, -14), (14, -12), (0, -16), (6, 16)])
