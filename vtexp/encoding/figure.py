@@ -56,10 +56,8 @@ MIN_CONFIDENCE = 0.5
 #: noise in the dark parts of the coffee scene was amplified (IoU 0.40); a floor
 #: of 20 grey levels fixed it (0.88) (research note §1.1).
 LOG_FLOOR = 20.0
-#: The light (gain and gradient) is fitted where the reference is at least this
-#: bright, in grey levels, and at least MIN_LIGHT_SAMPLES of its samples are (else to
-#: all): in the dark a gain is lost in the noise.
-LIGHT_MIN = 32.0
+#: :func:`fit_light` given ``valid``: fitted to the valid samples if at least this
+#: many are (else to all).
 MIN_LIGHT_SAMPLES = 64
 #: The change threshold is the score's median + MAD_FACTOR x 1.4826 x MAD (note §1.0).
 MAD_FACTOR = 8.0
@@ -230,7 +228,8 @@ def as_image(image: np.ndarray, name: str = "image") -> np.ndarray:
 
 
 def fit_light(log_ratio: np.ndarray, *, valid: np.ndarray | None = None,
-              samples: int = 1024, rounds: int = 4) -> np.ndarray:
+              weight: np.ndarray | None = None, samples: int = 1024,
+              rounds: int = 4) -> np.ndarray:
     """The light's change between reference and frame in one channel's log-ratio,
     ``log(I + 1) - log(R + 1)``, fitted robustly.
 
@@ -240,20 +239,32 @@ def fit_light(log_ratio: np.ndarray, *, valid: np.ndarray | None = None,
     plane in the log: a reference lit 0.8-1.15 from the left and a frame lit 1.05-1.35
     from a corner left a residual of 0.1 at the frame's edge past the plane.) It is
     fitted by least squares to about ``samples`` pixels on a regular grid (those of
-    ``valid``, if given, where the reference is bright enough for a ratio), starting
-    from the median (gain only) and refitting ``rounds`` times to the pixels within
-    3 x 1.4826 x MAD of the current surface, so that an object covering less than half
-    of the frame does not pull it. (On 36 scenes of ``bench/scenes.py`` at 160x120, the
+    ``valid``, if given and at least MIN_LIGHT_SAMPLES of them), starting from the
+    median (gain only) and refitting ``rounds`` times to the pixels within 3 x 1.4826
+    x MAD of the current surface, so that an object covering less than half of the
+    frame does not pull it. (On 36 scenes of ``bench/scenes.py`` at 160x120, the
     planes fitted to 4800 samples and to 1024 differed by at most 0.008.)
+
+    ``weight`` (H, W), each pixel's precision: the log-ratio of a pixel of reference
+    level R moves by about ``noise / (R + 1)``, so :func:`_light_residual` gives R + 1.
+    Residuals are then judged times their weight (in grey levels) and the squares
+    weighted by its square; the dark pixels hold the surface where nothing else does,
+    without their noise deciding it. Fitted to the bright pixels alone, a dark ground
+    lit unevenly left the samples on its bright side: the surface, extrapolated over
+    the rest, took a tenth of the frame as changed, or more than half (then refused as
+    another stage) once the reference was a mean of ten frames (docs/decisions.md).
 
     Returns the fitted surface, the log of the gain, an (H, W) float32 image.
     """
     ratio = np.asarray(log_ratio)[:, :, None]
     valid = None if valid is None else np.asarray(valid)[:, :, None]
-    return _fit_planes(ratio, valid=valid, samples=samples, rounds=rounds)[:, :, 0]
+    weight = None if weight is None else np.asarray(weight)[:, :, None]
+    return _fit_planes(ratio, valid=valid, weight=weight, samples=samples,
+                       rounds=rounds)[:, :, 0]
 
 
-def _fit_planes(ratio: np.ndarray, *, valid: np.ndarray | None = None, samples: int = 1024,
+def _fit_planes(ratio: np.ndarray, *, valid: np.ndarray | None = None,
+                weight: np.ndarray | None = None, samples: int = 1024,
                 rounds: int = 4) -> np.ndarray:
     """:func:`fit_light` of every channel of ``ratio`` (H, W, C) at once: (H, W, C)."""
     h, w, c = ratio.shape
@@ -263,22 +274,24 @@ def _fit_planes(ratio: np.ndarray, *, valid: np.ndarray | None = None, samples: 
     d = sub.reshape(-1, c).T.astype(np.float64)                    # (C, n)
     ok = (np.ones_like(d, bool) if valid is None
           else valid[::step, ::step].reshape(-1, c).T.copy())   # never the caller's array
-    ok[ok.sum(axis=1) < MIN_LIGHT_SAMPLES] = True    # too few bright pixels: take them all
+    ok[ok.sum(axis=1) < MIN_LIGHT_SAMPLES] = True    # too few valid pixels: take them all
+    wt = (np.ones_like(d) if weight is None
+          else weight[::step, ::step].reshape(-1, c).T.astype(np.float64))
     coef = np.zeros((c, design.shape[1]))
     for k in range(c):
-        dk, ak = d[k, ok[k]], design[ok[k]]
-        coef[k, 0] = median(dk)
+        dk, ak, sk = d[k, ok[k]], design[ok[k]], wt[k, ok[k]]
+        coef[k, 0] = median(dk[sk >= median(sk)])      # the brighter half's gain
         for _ in range(rounds):
-            r = dk - ak @ coef[k]
+            r = (dk - ak @ coef[k]) * sk
             dev = np.abs(r - median(r))
             keep = dev <= max(3 * 1.4826 * float(median(dev)), 1e-3)
             if keep.sum() < design.shape[1]:
                 break
-            a = ak[keep]
+            a, b = ak[keep] * sk[keep, None], dk[keep] * sk[keep]
             try:
-                coef[k] = np.linalg.solve(a.T @ a, a.T @ dk[keep])
+                coef[k] = np.linalg.solve(a.T @ a, a.T @ b)
             except np.linalg.LinAlgError:
-                coef[k] = np.linalg.lstsq(a, dk[keep], rcond=None)[0]
+                coef[k] = np.linalg.lstsq(a, b, rcond=None)[0]
     out = np.empty((h, w, c), np.float32)
     for k, (c1, cx, cy, cxx, cxy, cyy) in enumerate(coef.astype(np.float32)):
         # one channel at a time: numpy broadcasts slowly over a last axis of 3
@@ -341,15 +354,15 @@ def _light_residual(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarra
     """(score, gain): :func:`change_score` and the fitted light, the gain (H, W, C) that
     brings the reference to the frame's light.
 
-    The gain is fitted to ``log(I + 1) - log(R + 1)`` where the reference is at least
-    LIGHT_MIN (:func:`fit_light`): the floored log-ratio of the score is not a gain
+    The gain is fitted to ``log(I + 1) - log(R + 1)``, each pixel weighted by R + 1
+    (:func:`fit_light`): the floored log-ratio of the score is not a gain
     (a gain of 1.35 moves it by 0.16 at 20 grey levels and by 0.28 at 200), and fitted
     to it the light left bright parts of a relit stage 0.05-0.09 off. The score then
     compares the frame with the relit reference, ``log(I + 20) - log(min(g R, 255) +
     20)``: the camera clips at 255 what the relit reference predicts above it."""
     log_image = np.log(image + LOG_FLOOR)
     gain = np.exp(_fit_planes(np.log(image + 1.0) - np.log(reference + 1.0),
-                              valid=reference >= LIGHT_MIN))
+                              weight=reference + 1.0))
     r = log_image - np.log(np.minimum(reference * gain, 255.0) + LOG_FLOOR)
     return np.sqrt(_channel_mean(r * r)), gain
 
