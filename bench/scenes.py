@@ -21,8 +21,10 @@ offset 8-24 px, blurred, darkening the ground by 30-55 %), uneven light (a linea
 ramp from 0.70-0.90 to 1.10-1.25 in a random direction), Gaussian blur (sigma 0.6-1.4 px),
 sensor noise (sd 2-5 grey levels) and JPEG at quality 70 (``cv2.imencode``). The *empty*
 scenes are the same grounds and light with no object and no shadow. The *reference* of a
-scene is its empty stage again as a static camera would take it before the object came:
-same light, exposure changed by up to +-3 %, its own sensor noise, its own JPEG.
+scene is its empty stage as vtexp captures it before the object comes
+(``vtexp.live.trial.capture_empty_stage``, camera trials and ``vtexp live --background
+capture``): the mean of ``EMPTY_FRAMES`` (10) frames, rounded to 8 bits, each with the same
+light, the exposure changed by up to +-3 %, its own sensor noise and its own JPEG.
 
 Conditions: plain or real ground, each with no figure-ground (``none``: the pipelines as
 they are, the baseline) or with the figure of ``vtexp.encoding.figure`` passed to the
@@ -122,6 +124,7 @@ from vtexp.encoding import PIPELINES  # noqa: E402
 from vtexp.encoding.mapping import ImageToArray  # noqa: E402
 from vtexp.errors import UnsafeStimulus  # noqa: E402
 from vtexp.experiment import LoadedExperiment, load_experiment  # noqa: E402
+from vtexp.live.trial import EMPTY_FRAMES  # noqa: E402
 from vtexp.model import DeviceProfile, Pattern, Schedule  # noqa: E402
 from vtexp.stimuli import render_letter, render_shape  # noqa: E402
 from vtexp.stimuli.surfaces import render_surface, surface_height  # noqa: E402
@@ -338,10 +341,19 @@ def camera(stage: np.ndarray, d: dict, noise_seed: int, gain: float = 1.0) -> np
     return cv.imdecode(buf, cv.IMREAD_COLOR)
 
 
+def reference(stage: np.ndarray, d: dict, noise_seed: int) -> np.ndarray:
+    """The empty stage as vtexp captures it (``capture_empty_stage``): the mean of
+    ``EMPTY_FRAMES`` camera frames at the reference's exposure, each with its own noise
+    (seeds ``noise_seed``, ``noise_seed + 1``, ...), rounded to uint8 BGR."""
+    shots = [camera(stage, d, noise_seed + k, gain=d["exposure"]).astype(np.float32)
+             for k in range(EMPTY_FRAMES)]
+    return np.clip(np.rint(np.mean(shots, axis=0)), 0, 255).astype(np.uint8)
+
+
 @dataclass
 class Case:
     """One composite: the same object, pose and degradations on a real ground and on a
-    plain one; the empty stages; what a static camera took before the object came."""
+    plain one; the empty stages; the empty stage as vtexp captured it before the object came."""
 
     index: int
     seed: int
@@ -383,7 +395,7 @@ def make_case(index: int, grounds: dict[str, np.ndarray], seed: int = SEED) -> C
         shaded = stage * shadow_of(layer.alpha, d)
         frames[name, "object"] = camera(shaded * (1 - alpha) + layer.colour * alpha, d, noise[0])
         frames[name, "empty"] = camera(stage, d, noise[1])
-        frames[name, "reference"] = camera(stage, d, noise[2], gain=d["exposure"])
+        frames[name, "reference"] = reference(stage, d, noise[2])
     return Case(index, seed + index, ground, kind, what, pose, d,
                 [round(float(t), 1) for t in tone], layer.truth, frames)
 
