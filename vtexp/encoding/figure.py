@@ -249,10 +249,11 @@ def fit_light(log_ratio: np.ndarray, *, valid: np.ndarray | None = None,
     level R moves by about ``noise / (R + 1)``, so :func:`_light_residual` gives R + 1.
     Residuals are then judged times their weight (in grey levels) and the squares
     weighted by its square; the dark pixels hold the surface where nothing else does,
-    without their noise deciding it. Fitted to the bright pixels alone, a dark ground
-    lit unevenly left the samples on its bright side: the surface, extrapolated over
-    the rest, took a tenth of the frame as changed, or more than half (then refused as
-    another stage) once the reference was a mean of ten frames (docs/decisions.md).
+    without their noise deciding it. Fitted to the pixels of at least 32 grey levels
+    alone, a dark ground lit unevenly left the samples on its bright side: where the
+    object stood there too, the surface extrapolated over the rest took 65-88 % of the
+    frame for changed, refused as another stage, with one reference frame or the mean
+    of ten (docs/decisions.md).
 
     Returns the fitted surface, the log of the gain, an (H, W) float32 image.
     """
