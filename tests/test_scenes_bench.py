@@ -51,6 +51,12 @@ def edge_trace(scenes):
     study.device.close()
 
 
+@pytest.fixture(scope="module")
+def circle(scenes, grounds):
+    """Case 0, a circle (its reference is ten camera frames: made once)."""
+    return scenes.make_case(0, grounds)
+
+
 def test_a_case_is_made_again_from_its_seed_alone(scenes, grounds):
     a, b = scenes.make_case(3, grounds), scenes.make_case(3, grounds)
     assert a.seed == scenes.SEED + 3 and a.describe() == b.describe()
@@ -59,7 +65,7 @@ def test_a_case_is_made_again_from_its_seed_alone(scenes, grounds):
         assert np.array_equal(frame, b.frames[key])
     assert np.array_equal(a.truth, b.truth) and 0.01 < a.truth.mean() < 0.5
     # The object is in the scene and not on the empty stage; the reference is the empty
-    # stage again, close to it but not the same picture.
+    # stage again (the mean of ten captures), close to it but not the same picture.
     inside = a.truth
     obj, empty = (a.frames["plain", k].astype(float) for k in ("object", "empty"))
     assert obj[inside].mean() > empty[inside].mean() + 50
@@ -67,9 +73,9 @@ def test_a_case_is_made_again_from_its_seed_alone(scenes, grounds):
     assert 0 < np.abs(ref - empty).mean() < 8
 
 
-def test_the_true_mask_scores_one_against_itself_and_less_when_shifted(scenes, grounds,
+def test_the_true_mask_scores_one_against_itself_and_less_when_shifted(scenes, circle,
                                                                        edge_trace):
-    case = scenes.make_case(0, grounds)                       # a circle
+    case = circle
     clean = np.repeat((case.truth * 170 + 40).astype(np.uint8)[..., None], 3, axis=2)
     with scenes.FitRecorder() as recorder, warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -109,8 +115,8 @@ def test_an_empty_scene_that_plays_nothing_drives_nothing(scenes, grounds, edge_
     assert summary[0]["drive_any"] == 0.5 and summary[0]["driven_median"] == 2.5
 
 
-def test_a_measured_case_and_its_summary(scenes, grounds, edge_trace):
-    case = scenes.make_case(0, grounds)                       # a circle: it is named
+def test_a_measured_case_and_its_summary(scenes, circle, edge_trace):
+    case = circle                                             # a circle: it is named
     namer = scenes.Namer(edge_trace, case)
     with scenes.FitRecorder() as recorder, warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -124,11 +130,11 @@ def test_a_measured_case_and_its_summary(scenes, grounds, edge_trace):
     assert all(r["fps_ratio"] == 1.0 and r["cases"] == 1 for r in rows)
 
 
-def test_the_truth_method_passes_the_exact_mask_and_refuses_an_empty_scene(scenes, grounds,
+def test_the_truth_method_passes_the_exact_mask_and_refuses_an_empty_scene(scenes, circle,
                                                                            edge_trace):
     if scenes.Figure is None:
         pytest.skip("vtexp.encoding.figure is not in this tree")
-    case = scenes.make_case(0, grounds)
+    case = circle
     with scenes.FitRecorder() as recorder, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rec = scenes.measure(edge_trace, case, "real", "truth", recorder, None)
