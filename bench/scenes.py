@@ -124,7 +124,7 @@ from vtexp.encoding import PIPELINES  # noqa: E402
 from vtexp.encoding.mapping import ImageToArray  # noqa: E402
 from vtexp.errors import UnsafeStimulus  # noqa: E402
 from vtexp.experiment import LoadedExperiment, load_experiment  # noqa: E402
-from vtexp.live.trial import EMPTY_FRAMES  # noqa: E402
+from vtexp.live.trial import EMPTY_FRAMES, mean_frame  # noqa: E402
 from vtexp.model import DeviceProfile, Pattern, Schedule  # noqa: E402
 from vtexp.stimuli import render_letter, render_shape  # noqa: E402
 from vtexp.stimuli.surfaces import render_surface, surface_height  # noqa: E402
@@ -345,9 +345,8 @@ def reference(stage: np.ndarray, d: dict, noise_seed: int) -> np.ndarray:
     """The empty stage as vtexp captures it (``capture_empty_stage``): the mean of
     ``EMPTY_FRAMES`` camera frames at the reference's exposure, each with its own noise
     (seeds ``noise_seed``, ``noise_seed + 1``, ...), rounded to uint8 BGR."""
-    shots = [camera(stage, d, noise_seed + k, gain=d["exposure"]).astype(np.float32)
-             for k in range(EMPTY_FRAMES)]
-    return np.clip(np.rint(np.mean(shots, axis=0)), 0, 255).astype(np.uint8)
+    return mean_frame(camera(stage, d, noise_seed + k, gain=d["exposure"])
+                      for k in range(EMPTY_FRAMES))
 
 
 @dataclass

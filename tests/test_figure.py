@@ -28,6 +28,7 @@ from vtexp.encoding.figure import (MIN_CONFIDENCE, SHADOW_REACH, BackgroundModel
 from vtexp.encoding.height_contours import reflectance
 from vtexp.encoding.snake import SnakeTracker
 from vtexp.errors import InputError
+from vtexp.live.trial import mean_frame
 from vtexp.stimuli import render_shape
 from vtexp.stimuli.spiral import render_whirlpool
 from vtexp.stimuli.surfaces import render_surface, surface_height
@@ -178,8 +179,7 @@ def test_the_light_on_a_dark_ground_is_fitted_over_the_whole_frame(frames, size,
                          rotation_deg=8, background=0, foreground=255) / 255.0
     scene = stage * (1 - cover[:, :, None]) + np.float32([70, 74, 66]) * cover[:, :, None]
     frame = jpeg(shoot(scene, ramp, 2), 70)
-    shots = [jpeg(shoot(stage, ramp, 10 + k), 70).astype(np.float32) for k in range(frames)]
-    reference = np.clip(np.rint(np.mean(shots, axis=0)), 0, 255).astype(np.uint8)
+    reference = mean_frame(jpeg(shoot(stage, ramp, 10 + k), 70) for k in range(frames))
     fig = figure_from_reference(frame, reference)
     assert not fig.empty, fig.reason
     assert iou(fig.mask, cover >= 0.5) >= 0.98

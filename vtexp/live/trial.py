@@ -163,13 +163,20 @@ def capture_empty_stage(source: FrameSource, prompt: CapturePrompt | None, *,
                     break
                 box.wait(0.05)
                 continue
-            got.append(np.asarray(frame.image, np.float32))
+            got.append(frame.image)
     finally:
         cap.stop(close=False)
     if not got:
         raise InputError(f"{source.label} gave no frame of the empty stage for {stall_s:g} s",
                          key=key)
-    return np.clip(np.rint(np.mean(got, axis=0)), 0, 255).astype(np.uint8)
+    return mean_frame(got)
+
+
+def mean_frame(frames) -> np.ndarray:
+    """The mean of ``frames`` (of one shape), rounded to uint8: the empty stage as
+    :func:`capture_empty_stage` keeps it (less sensor noise than one frame)."""
+    return np.clip(np.rint(np.mean([np.asarray(f, np.float32) for f in frames], axis=0)),
+                   0, 255).astype(np.uint8)
 
 
 def touches_edge(mask: np.ndarray) -> bool:
